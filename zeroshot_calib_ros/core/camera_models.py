@@ -1,0 +1,327 @@
+"""Camera models with one interface: ``project`` rays to pixels, ``unproject`` pixels to rays.
+
+Rays are 3-vectors in the camera frame (x right, y down, z forward), pixels are (u, v) in
+OpenCV's convention. Every model takes arrays of shape (..., 3) / (..., 2) and returns arrays of
+the matching shape; points a model cannot represent come back as NaN, never as a wrong number.
+
+- ``ZeroShotCamera``: the paper's exact model (pinhole K + fisheye distortion map G_w).
+- ``KannalaBrandtCamera``: OpenCV fisheye / ROS ``equidistant`` (k1..k4).
+- ``PlumbBobCamera``: OpenCV's radial-tangential / ROS ``plumb_bob`` (k1, k2, p1, p2, k3).
+- ``PinholeCamera``: no distortion.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .projections import FisheyeProjection, Equidistant
+
+
+def _as_rays(rays):
+    rays = np.asarray(rays, dtype=float)
+    if rays.shape[-1] != 3:
+        raise ValueError(f'rays must have shape (..., 3), got {rays.shape}')
+    return rays
+
+
+def _as_pixels(pixels):
+    pixels = np.asarray(pixels, dtype=float)
+    if pixels.shape[-1] != 2:
+        raise ValueError(f'pixels must have shape (..., 2), got {pixels.shape}')
+    return pixels
+
+
+def angle_between(a, b) -> np.ndarray:
+    """Angle in radians between rays (robust near 0 and pi, unlike arccos of a dot product)."""
+    a = _as_rays(a)
+    b = _as_rays(b)
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
+
+
+class CameraModel:
+    """Shared behaviour: intrinsics, image size and the derived conveniences."""
+
+    def __init__(self, fx, fy, cx, cy, width, height):
+        self.fx, self.fy, self.cx, self.cy = float(fx), float(fy), float(cx), float(cy)
+        self.width, self.height = int(width), int(height)
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def project(self, rays) -> np.ndarray:
+        raise NotImplementedError
+
+    def unproject(self, pixels) -> np.ndarray:
+        """Unit rays of the pixels."""
+        raise NotImplementedError
+
+    def distort(self, xy) -> np.ndarray:
+        """Normalised pinhole coordinates (x/z, y/z) -> distorted pixels."""
+        xy = np.asarray(xy, dtype=float)
+        return self.project(np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1))
+
+    def undistort(self, pixels) -> np.ndarray:
+        """Distorted pixels -> normalised pinhole coordinates (x/z, y/z); NaN beyond 90 deg."""
+        rays = self.unproject(pixels)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            xy = rays[..., :2] / rays[..., 2:3]
+        return np.where(rays[..., 2:3] > 0, xy, np.nan)
+
+    def fields_of_view(self) -> dict:
+        """Edge-to-edge FOVs in degrees through the principal point: hfov between the rays of
+        (0, cy) and (W, cy), vfov between (cx, 0) and (cx, H), dfov between (0, 0) and (W, H)."""
+        w, h, cx, cy = self.width, self.height, self.cx, self.cy
+        px = np.array([[0, cy], [w, cy], [cx, 0], [cx, h], [0, 0], [w, h]], dtype=float)
+        r = self.unproject(px)
+        ang = np.degrees(angle_between(r[0::2], r[1::2]))
+        return {'hfov': float(ang[0]), 'vfov': float(ang[1]), 'dfov': float(ang[2])}
+
+    def max_field_angle(self) -> float:
+        """Largest off-axis angle (radians) of any pixel: the farthest image corner's ray."""
+        w, h = self.width, self.height
+        corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], dtype=float)
+        rays = self.unproject(corners)
+        return float(np.max(np.arctan2(np.linalg.norm(rays[:, :2], axis=-1), rays[:, 2])))
+
+    def corner_radius(self) -> float:
+        """Distance in pixels from the principal point to the farthest image corner."""
+        return max(math.hypot(x - self.cx, y - self.cy)
+                   for x in (0, self.width) for y in (0, self.height))
+
+    def scaled(self, width: int, height: int) -> 'CameraModel':
+        """The same lens at another resolution with the same aspect (binned or resized image)."""
+        raise NotImplementedError
+
+
+class RadialCamera(CameraModel):
+    """A model with fx = fy = f whose distortion depends only on the off-axis angle theta:
+    pixel radius = f * theta_d(theta). Subclasses give ``theta_d`` and its inverse."""
+
+    def __init__(self, f, cx, cy, width, height):
+        super().__init__(f, f, cx, cy, width, height)
+
+    @property
+    def f(self) -> float:
+        return self.fx
+
+    def theta_d(self, theta):
+        raise NotImplementedError
+
+    def theta_from_theta_d(self, theta_d):
+        """Inverse of theta_d; NaN where no ray maps to that radius."""
+        raise NotImplementedError
+
+    def project(self, rays):
+        rays = _as_rays(rays)
+        r_xy = np.hypot(rays[..., 0], rays[..., 1])
+        theta = np.arctan2(r_xy, rays[..., 2])
+        with np.errstate(invalid='ignore', divide='ignore'):
+            scale = np.where(r_xy > 0, self.f * self.theta_d(theta) / np.where(r_xy > 0, r_xy, 1.0),
+                             # on the axis the limit of theta_d(theta)/theta * f / z
+                             self.f / np.where(rays[..., 2] > 0, rays[..., 2], np.nan))
+        return np.stack([self.cx + scale * rays[..., 0], self.cy + scale * rays[..., 1]], axis=-1)
+
+    def unproject(self, pixels):
+        pixels = _as_pixels(pixels)
+        dx = pixels[..., 0] - self.cx
+        dy = pixels[..., 1] - self.cy
+        r_d = np.hypot(dx, dy)
+        theta = self.theta_from_theta_d(r_d / self.f)
+        s = np.sin(theta)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            ux = np.where(r_d > 0, dx / np.where(r_d > 0, r_d, 1.0), 0.0)
+            uy = np.where(r_d > 0, dy / np.where(r_d > 0, r_d, 1.0), 0.0)
+        return np.stack([ux * s, uy * s, np.cos(theta)], axis=-1)
+
+
+class ZeroShotCamera(RadialCamera):
+    """The paper's model: pinhole focal f, principal point (cx, cy), distortion map G_w.
+
+    A ray theta off-axis lands at the pinhole radius r_u = f tan(theta) and is distorted to
+    r_d = G_w(r_u) = rho(arctan(w f tan(theta))) / w. Written with atan2 this stays finite up
+    to theta = 90 deg, which a pinhole cannot reach but the lens can.
+    """
+
+    def __init__(self, f, cx, cy, width, height, omega=0.0,
+                 projection: FisheyeProjection = Equidistant()):
+        super().__init__(f, cx, cy, width, height)
+        self.omega = float(omega)
+        self.projection = projection
+
+    @property
+    def a(self) -> float:
+        """w * f: 0 is a pinhole, 1 the pure fisheye law with the pinhole's focal length."""
+        return self.omega * self.f
+
+    def theta_d(self, theta):
+        theta = np.asarray(theta, dtype=float)
+        with np.errstate(invalid='ignore'):
+            valid = theta <= np.pi / 2
+        if self.omega == 0.0:
+            with np.errstate(invalid='ignore'):
+                return np.where(valid, np.tan(np.minimum(theta, np.pi / 2 - 1e-300)), np.nan)
+        a = self.a
+        psi = np.arctan2(a * np.sin(theta), np.cos(theta))
+        return np.where(valid, self.projection.rho(psi) / a, np.nan)
+
+    def theta_from_theta_d(self, theta_d):
+        theta_d = np.asarray(theta_d, dtype=float)
+        if self.omega == 0.0:
+            return np.arctan(theta_d)
+        a = self.a
+        rho = a * theta_d
+        with np.errstate(invalid='ignore'):
+            psi = self.projection.theta(np.minimum(rho, self.projection.rho_max))
+            theta = np.arctan2(np.sin(psi), a * np.cos(psi))
+            return np.where(rho <= self.projection.rho_max, theta, np.nan)
+
+    def scaled(self, width, height):
+        s = width / self.width
+        return ZeroShotCamera(self.f * s, self.cx * s, self.cy * height / self.height, width, height,
+                              self.omega / s, self.projection)
+
+    def __repr__(self):
+        return (f'ZeroShotCamera(f={self.f:.6g}, cx={self.cx:g}, cy={self.cy:g}, '
+                f'omega={self.omega:.6g}, projection={self.projection.name}, '
+                f'size={self.width}x{self.height})')
+
+
+class KannalaBrandtCamera(CameraModel):
+    """OpenCV fisheye (ROS ``equidistant``): theta_d = theta (1 + k1 t^2 + k2 t^4 + k3 t^6 + k4 t^8)."""
+
+    distortion_model = 'equidistant'
+
+    def __init__(self, fx, fy, cx, cy, width, height, D):
+        super().__init__(fx, fy, cx, cy, width, height)
+        D = np.asarray(D, dtype=float).ravel()
+        if D.size != 4:
+            raise ValueError(f'equidistant distortion needs 4 coefficients, got {D.size}')
+        self.D = D
+
+    def theta_d(self, theta):
+        t2 = np.asarray(theta, dtype=float) ** 2
+        k1, k2, k3, k4 = self.D
+        return theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+
+    def _dtheta_d(self, theta):
+        t2 = theta * theta
+        k1, k2, k3, k4 = self.D
+        return 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+
+    def theta_from_theta_d(self, theta_d, iterations: int = 30):
+        """Newton on the odd polynomial, from theta = theta_d; NaN where it did not converge
+        or where the polynomial is not monotonic (no unique ray)."""
+        theta_d = np.asarray(theta_d, dtype=float)
+        theta = np.array(theta_d, dtype=float)
+        for _ in range(iterations):
+            with np.errstate(invalid='ignore', over='ignore', divide='ignore'):
+                theta = theta - (self.theta_d(theta) - theta_d) / self._dtheta_d(theta)
+        with np.errstate(invalid='ignore', over='ignore'):
+            ok = (np.abs(self.theta_d(theta) - theta_d) < 1e-12 * np.maximum(1.0, theta_d)) \
+                & (self._dtheta_d(theta) > 0) & (theta >= 0) & (theta < np.pi)
+        return np.where(ok, theta, np.nan)
+
+    def project(self, rays):
+        rays = _as_rays(rays)
+        r_xy = np.hypot(rays[..., 0], rays[..., 1])
+        theta = np.arctan2(r_xy, rays[..., 2])
+        with np.errstate(invalid='ignore', divide='ignore'):
+            scale = np.where(r_xy > 0, self.theta_d(theta) / np.where(r_xy > 0, r_xy, 1.0),
+                             1.0 / np.where(rays[..., 2] > 0, rays[..., 2], np.nan))
+        return np.stack([self.cx + self.fx * scale * rays[..., 0],
+                         self.cy + self.fy * scale * rays[..., 1]], axis=-1)
+
+    def unproject(self, pixels):
+        pixels = _as_pixels(pixels)
+        mx = (pixels[..., 0] - self.cx) / self.fx
+        my = (pixels[..., 1] - self.cy) / self.fy
+        theta_d = np.hypot(mx, my)
+        theta = self.theta_from_theta_d(theta_d)
+        s = np.sin(theta)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            ux = np.where(theta_d > 0, mx / np.where(theta_d > 0, theta_d, 1.0), 0.0)
+            uy = np.where(theta_d > 0, my / np.where(theta_d > 0, theta_d, 1.0), 0.0)
+        return np.stack([ux * s, uy * s, np.cos(theta)], axis=-1)
+
+    def scaled(self, width, height):
+        sx, sy = width / self.width, height / self.height
+        return KannalaBrandtCamera(self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy,
+                                   width, height, self.D)
+
+
+class PlumbBobCamera(CameraModel):
+    """OpenCV's radial-tangential model (ROS ``plumb_bob``), D = (k1, k2, p1, p2, k3)."""
+
+    distortion_model = 'plumb_bob'
+
+    def __init__(self, fx, fy, cx, cy, width, height, D):
+        super().__init__(fx, fy, cx, cy, width, height)
+        D = np.zeros(5) if D is None or len(D) == 0 else np.asarray(D, dtype=float).ravel()
+        if D.size not in (4, 5, 8):
+            raise ValueError(f'plumb_bob distortion needs 5 coefficients, got {D.size}')
+        self.D = np.pad(D, (0, 8 - D.size)) if D.size < 8 else D
+
+    def _distort_normalised(self, x, y):
+        k1, k2, p1, p2, k3, k4, k5, k6 = self.D
+        r2 = x * x + y * y
+        radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        return xd, yd
+
+    def project(self, rays):
+        rays = _as_rays(rays)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            z = np.where(rays[..., 2] > 0, rays[..., 2], np.nan)
+            xd, yd = self._distort_normalised(rays[..., 0] / z, rays[..., 1] / z)
+        return np.stack([self.cx + self.fx * xd, self.cy + self.fy * yd], axis=-1)
+
+    def unproject(self, pixels, iterations: int = 50):
+        """Fixed-point inversion as cv2.undistortPoints, iterated to convergence."""
+        pixels = _as_pixels(pixels)
+        xd = (pixels[..., 0] - self.cx) / self.fx
+        yd = (pixels[..., 1] - self.cy) / self.fy
+        x, y = xd.copy(), yd.copy()
+        for _ in range(iterations):
+            with np.errstate(invalid='ignore', over='ignore'):
+                xe, ye = self._distort_normalised(x, y)
+                x, y = x - (xe - xd), y - (ye - yd)
+        with np.errstate(invalid='ignore', over='ignore'):
+            xe, ye = self._distort_normalised(x, y)
+            ok = np.hypot(xe - xd, ye - yd) < 1e-9
+        n = np.sqrt(x * x + y * y + 1)
+        rays = np.stack([x / n, y / n, 1 / n], axis=-1)
+        return np.where(ok[..., None], rays, np.nan)
+
+    def scaled(self, width, height):
+        sx, sy = width / self.width, height / self.height
+        return PlumbBobCamera(self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy,
+                              width, height, self.D[:5])
+
+
+class PinholeCamera(PlumbBobCamera):
+    """No distortion."""
+
+    def __init__(self, fx, fy, cx, cy, width, height):
+        super().__init__(fx, fy, cx, cy, width, height, np.zeros(5))
+
+    def unproject(self, pixels):
+        pixels = _as_pixels(pixels)
+        x = (pixels[..., 0] - self.cx) / self.fx
+        y = (pixels[..., 1] - self.cy) / self.fy
+        n = np.sqrt(x * x + y * y + 1)
+        return np.stack([x / n, y / n, 1 / n], axis=-1)
+
+
+def camera_from_calibration(distortion_model: str, K, D, width: int, height: int) -> CameraModel:
+    """The model a ROS CameraInfo / calibration file describes."""
+    K = np.asarray(K, dtype=float).reshape(3, 3)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    if distortion_model in ('equidistant', 'fisheye'):
+        return KannalaBrandtCamera(fx, fy, cx, cy, width, height, D)
+    if distortion_model in ('plumb_bob', 'rational_polynomial'):
+        return PlumbBobCamera(fx, fy, cx, cy, width, height, D)
+    raise ValueError(f"distortion_model = {distortion_model!r} is invalid: allowed: "
+                     "equidistant, plumb_bob, rational_polynomial")

@@ -1,0 +1,225 @@
+"""Zero-shot calibration: focal length and distortion from resolution and FOV (paper sec. 2).
+
+Two FOVs across extents r_a > r_b of the image (e.g. W/2 and H/2) must give the same
+undistorted focal length (square pixels, eqs. 12-17):
+
+    f = G_w^-1(r_a) / tan(theta_a / 2) = G_w^-1(r_b) / tan(theta_b / 2)
+
+The root w* of J_stable(w) = tan(theta_b/2)/tan(theta_a/2) - G_w^-1(r_b)/G_w^-1(r_a) (eq. 27,
+generalised to any pair of extents and any projection) is found by bracketing: J_stable rises
+monotonically from tan(theta_b/2)/tan(theta_a/2) - r_b/r_a at w -> 0 to tan(theta_b/2)/tan(theta_a/2)
+as G_w^-1(r_a) -> inf at w = rho_max / r_a, so a barrel-distorted spec has exactly one root and
+Brent's method finds it to machine precision. The paper's damped Newton iteration is kept as an
+option (``method='newton'``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, Optional
+
+import numpy as np
+from scipy.optimize import brentq
+
+from .camera_models import ZeroShotCamera
+from .projections import PROJECTIONS, FisheyeProjection
+from .spec import CameraSpec, SpecError
+
+PROJECTION_CHOICES = ('auto',) + tuple(PROJECTIONS)
+DEFAULT_PROJECTION = 'equidistant'
+
+
+class NoConvergence(RuntimeError):
+    """The paper's Newton iteration did not reach a root (the bracketed solver always does)."""
+
+
+@dataclass
+class ZeroShotSolution:
+    """A solved camera and how it was obtained."""
+
+    spec: CameraSpec
+    camera: ZeroShotCamera
+    root_found: bool
+    """False when no barrel-distortion root exists: w* = 0 and f is the mean perspective focal."""
+    focal_estimates: Dict[str, float]
+    """Undistorted focal length implied by each given FOV at w* (equal at a root)."""
+    method: str
+    dfov_residuals: Dict[str, float] = field(default_factory=dict)
+    """With dfov and hfov + vfov given: predicted minus given dfov (degrees) for every projection."""
+    iterations: int = 0
+
+    @property
+    def omega(self) -> float:
+        return self.camera.omega
+
+    @property
+    def f(self) -> float:
+        return self.camera.f
+
+    @property
+    def projection(self) -> FisheyeProjection:
+        return self.camera.projection
+
+    @property
+    def K(self) -> np.ndarray:
+        return self.camera.K
+
+    def distort(self, xy):
+        return self.camera.distort(xy)
+
+    def undistort(self, pixels):
+        return self.camera.undistort(pixels)
+
+    def predicted_fovs(self) -> dict:
+        return self.camera.fields_of_view()
+
+
+def _tan_half(deg: float) -> float:
+    return math.tan(math.radians(deg) / 2.0)
+
+
+def _check_representable(spec: CameraSpec, projection: FisheyeProjection):
+    for name, deg in spec.given().items():
+        if deg >= 180.0:
+            raise SpecError(name, deg, f'less than 180 degrees for the {projection.name} model',
+                            f'the {projection.name} model seen through a pinhole (the paper\'s model) '
+                            'cannot represent rays 90 degrees or more off-axis')
+
+
+def _ratio(projection, r_a, r_b, omega):
+    """G_w^-1(r_b) / G_w^-1(r_a), with its w -> 0 limit r_b / r_a."""
+    if omega == 0.0:
+        return r_b / r_a
+    return float(projection.undistort_radius(r_b, omega) / projection.undistort_radius(r_a, omega))
+
+
+def _bracketed_root(projection, r_a, t_a, r_b, t_b):
+    omega_max = projection.rho_max / r_a
+
+    def j_stable(omega):
+        return t_b / t_a - _ratio(projection, r_a, r_b, omega)
+
+    # j_stable(omega_max) is t_b / t_a > 0 in the limit; stop one ulp short of the pole.
+    hi = np.nextafter(omega_max, 0.0)
+    return brentq(j_stable, 0.0, hi, xtol=1e-300, rtol=4 * np.finfo(float).eps, maxiter=500)
+
+
+def _newton_root(projection, r_a, t_a, r_b, t_b, omega0=1e-4, gamma=0.1, tol=1e-12,
+                 max_iter=2000):
+    """The paper's damped Newton-Raphson on J_stable (eqs. 26-27): w0 = 1e-4, gamma = 0.1."""
+    omega = omega0
+    for k in range(1, max_iter + 1):
+        if not 0.0 < omega < projection.rho_max / r_a:
+            raise NoConvergence(f'Newton left the valid range at iteration {k}: w = {omega:.6g}')
+        ua = projection.undistort_radius(r_a, omega)
+        ub = projection.undistort_radius(r_b, omega)
+        j = t_b / t_a - ub / ua
+        dua = projection.d_undistort_radius_domega(r_a, omega)
+        dub = projection.d_undistort_radius_domega(r_b, omega)
+        dj = -(dub * ua - ub * dua) / ua ** 2
+        step = gamma * j / dj
+        omega = float(omega - step)
+        if abs(step) <= tol * abs(omega):
+            return omega, k
+    raise NoConvergence(f'Newton did not converge in {max_iter} iterations (w = {omega:.6g})')
+
+
+def _solve_pair(spec, projection, name_a, name_b, method):
+    """Solve w*, f from the FOVs ``name_a`` and ``name_b`` (r_a >= r_b)."""
+    extents = spec.half_extents()
+    fovs = spec.given()
+    (r_a, n_a), (r_b, n_b) = sorted([(extents[name_a], name_a), (extents[name_b], name_b)], reverse=True)
+    t_a, t_b = _tan_half(fovs[n_a]), _tan_half(fovs[n_b])
+    if r_a == r_b:
+        # Only a square image with hfov == vfov gets here (spec validation rejects unequal FOVs).
+        raise SpecError('dfov', spec.dfov, 'a diagonal FOV in degrees',
+                        f'{n_a} and {n_b} span equal extents with equal angles on a square image, '
+                        'so they cannot determine the distortion; give dfov as well')
+    iterations = 0
+    if t_b / t_a >= r_b / r_a:
+        # No barrel root (pincushion or no distortion): the paper's Hero9(L) row, w* = 0.
+        omega, root = 0.0, False
+    else:
+        root = True
+        if method == 'newton':
+            omega, iterations = _newton_root(projection, r_a, t_a, r_b, t_b)
+        else:
+            omega = _bracketed_root(projection, r_a, t_a, r_b, t_b)
+    focal = {n: float(projection.undistort_radius(r, omega)) / t
+             for n, r, t in ((n_a, r_a, t_a), (n_b, r_b, t_b))}
+    if root:
+        f = focal[n_a]
+    else:
+        f = (focal[n_a] + focal[n_b]) / 2.0
+    return omega, f, focal, root, iterations
+
+
+def _make_camera(spec, projection, omega, f):
+    camera = ZeroShotCamera(f, spec.width / 2.0, spec.height / 2.0, spec.width, spec.height,
+                            omega, projection)
+    if omega * camera.corner_radius() >= projection.rho_max:
+        predicted = ', '.join(f'{n} = {v:g}' for n, v in spec.given().items())
+        raise SpecError('dfov', spec.dfov,
+                        f'a camera whose diagonal FOV is below 180 degrees for the {projection.name} model',
+                        f'{predicted} imply image corners 90 degrees or more off-axis, which the '
+                        f'{projection.name} model through a pinhole cannot represent')
+    return camera
+
+
+def solve_zero_shot(spec: CameraSpec, projection: str = 'auto', method: str = 'bracketed') -> ZeroShotSolution:
+    """Zero-shot calibration of ``spec``.
+
+    ``projection``: a name in PROJECTIONS, or 'auto': with hfov, vfov and dfov given, the
+    projection whose predicted dfov is closest to the given one (the paper's proposed adaptive
+    selection, sec. 5); otherwise equidistant, the paper's default.
+    ``method``: 'bracketed' (Brent, exact to machine precision) or 'newton' (the paper's).
+    """
+    if projection not in PROJECTION_CHOICES:
+        raise SpecError('projection', projection, ', '.join(PROJECTION_CHOICES))
+    if method not in ('bracketed', 'newton'):
+        raise SpecError('method', method, 'bracketed, newton')
+    given = spec.given()
+
+    if len(given) == 1:
+        # Perspective only (the paper's C905): one FOV fixes f, nothing constrains w.
+        (name, deg), = given.items()
+        proj = PROJECTIONS[DEFAULT_PROJECTION if projection == 'auto' else projection]
+        _check_representable(spec, proj)
+        f = spec.half_extents()[name] / _tan_half(deg)
+        return ZeroShotSolution(spec, _make_camera(spec, proj, 0.0, f), False, {name: f}, method)
+
+    if 'hfov' in given and 'vfov' in given:
+        pair = ('hfov', 'vfov')
+    else:
+        pair = ('dfov', 'hfov' if 'hfov' in given else 'vfov')
+
+    candidates = list(PROJECTIONS) if projection == 'auto' else [projection]
+    if projection == 'auto' and not (len(given) == 3):
+        candidates = [DEFAULT_PROJECTION]
+    if len(given) == 3 and projection != 'auto':
+        candidates = list(PROJECTIONS)  # residuals of every model are reported either way
+
+    solutions, errors = {}, {}
+    for name in candidates:
+        proj = PROJECTIONS[name]
+        try:
+            _check_representable(spec, proj)
+            omega, f, focal, root, iters = _solve_pair(spec, proj, *pair, method)
+            camera = _make_camera(spec, proj, omega, f)
+        except (SpecError, NoConvergence) as exc:
+            errors[name] = exc
+            continue
+        solutions[name] = ZeroShotSolution(spec, camera, root, focal, method, iterations=iters)
+
+    if len(given) == 3:
+        residuals = {n: s.camera.fields_of_view()['dfov'] - spec.dfov for n, s in solutions.items()}
+        wanted = projection if projection != 'auto' else (
+            min(residuals, key=lambda n: abs(residuals[n])) if residuals else None)
+    else:
+        residuals = {}
+        wanted = candidates[0]
+    if wanted not in solutions:
+        raise errors.get(wanted) or next(iter(errors.values()))
+    chosen = solutions[wanted]
+    chosen.dfov_residuals = residuals
+    return chosen

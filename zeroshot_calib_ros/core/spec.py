@@ -1,0 +1,103 @@
+"""What a camera's spec sheet says: resolution and fields of view, validated."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+MAX_IMAGE_SIDE = 100_000
+"""Largest accepted image side in pixels (well above any sensor; catches typos like 19200)."""
+
+MAX_FOV_DEG = 360.0
+"""A spec FOV is an angle across the image; models narrow this further (see projections)."""
+
+
+class SpecError(ValueError):
+    """A camera specification value is invalid.
+
+    ``field`` names the offending input (``hfov``, ``width``, ...), ``value`` is what was given
+    and ``allowed`` describes the accepted range, so callers (CLI, ROS node) can report it in one
+    line.
+    """
+
+    def __init__(self, field: str, value, allowed: str, reason: str = ''):
+        self.field = field
+        self.value = value
+        self.allowed = allowed
+        self.reason = reason
+        detail = f'{reason}; ' if reason else ''
+        super().__init__(f'{field} = {value!r} is invalid: {detail}allowed: {allowed}')
+
+
+def _check_side(field: str, value) -> int:
+    allowed = f'an integer from 1 to {MAX_IMAGE_SIDE} (pixels)'
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SpecError(field, value, allowed, 'not a number')
+    if isinstance(value, float):
+        if not math.isfinite(value) or value != int(value):
+            raise SpecError(field, value, allowed, 'not a whole number')
+        value = int(value)
+    if not 1 <= value <= MAX_IMAGE_SIDE:
+        raise SpecError(field, value, allowed)
+    return int(value)
+
+
+def _check_fov(field: str, value) -> Optional[float]:
+    if value is None:
+        return None
+    allowed = f'degrees, greater than 0 and less than {MAX_FOV_DEG:g}, or not given'
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SpecError(field, value, allowed, 'not a number')
+    value = float(value)
+    if not math.isfinite(value) or not 0.0 < value < MAX_FOV_DEG:
+        raise SpecError(field, value, allowed)
+    return value
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """Image size in pixels and the spec-sheet fields of view in degrees.
+
+    Accepted combinations: any non-empty subset of ``hfov``, ``vfov``, ``dfov`` (the paper uses
+    hfov + vfov; hfov alone is the perspective-only case of its C905 row). The FOVs are angles
+    between the rays of opposite image edges (hfov), top and bottom (vfov) or opposite corners
+    (dfov), through the image centre.
+    """
+
+    width: int
+    height: int
+    hfov: Optional[float] = None
+    vfov: Optional[float] = None
+    dfov: Optional[float] = None
+
+    def __post_init__(self):
+        object.__setattr__(self, 'width', _check_side('width', self.width))
+        object.__setattr__(self, 'height', _check_side('height', self.height))
+        for name in ('hfov', 'vfov', 'dfov'):
+            object.__setattr__(self, name, _check_fov(name, getattr(self, name)))
+        if self.hfov is None and self.vfov is None and self.dfov is None:
+            raise SpecError('hfov', None, 'at least one of hfov, vfov, dfov', 'no field of view given')
+        # The diagonal is the longest extent: its FOV must exceed the other two for any
+        # radially symmetric lens whose FOV grows with the distance from the centre.
+        for name in ('hfov', 'vfov'):
+            other = getattr(self, name)
+            if self.dfov is not None and other is not None and self.dfov <= other:
+                raise SpecError('dfov', self.dfov, f'greater than {name} = {other:g} degrees',
+                                'the diagonal field of view must be the widest')
+        if self.width == self.height and self.hfov is not None and self.vfov is not None \
+                and self.hfov != self.vfov:
+            raise SpecError('vfov', self.vfov, f'equal to hfov = {self.hfov:g} degrees on a square image',
+                            'a square image with square pixels has equal horizontal and vertical FOV')
+
+    @property
+    def diagonal(self) -> float:
+        """Image diagonal in pixels."""
+        return math.hypot(self.width, self.height)
+
+    def given(self) -> dict:
+        """The FOVs that were given, as {name: degrees}."""
+        return {n: getattr(self, n) for n in ('hfov', 'vfov', 'dfov') if getattr(self, n) is not None}
+
+    def half_extents(self) -> dict:
+        """Distance in pixels from the image centre to the edge each FOV spans."""
+        return {'hfov': self.width / 2.0, 'vfov': self.height / 2.0, 'dfov': self.diagonal / 2.0}
