@@ -158,11 +158,11 @@ def _make_camera(spec, projection, omega, f):
     camera = ZeroShotCamera(f, spec.width / 2.0, spec.height / 2.0, spec.width, spec.height,
                             omega, projection)
     if omega * camera.corner_radius() >= projection.rho_max:
-        predicted = ', '.join(f'{n} = {v:g}' for n, v in spec.given().items())
-        raise SpecError('dfov', spec.dfov,
-                        f'a camera whose diagonal FOV is below 180 degrees for the {projection.name} model',
-                        f'{predicted} imply image corners 90 degrees or more off-axis, which the '
-                        f'{projection.name} model through a pinhole cannot represent')
+        given = spec.given()
+        raise SpecError(', '.join(given), tuple(given.values()),
+                        f'FOVs whose image corners stay below 90 degrees off-axis in the {projection.name} model',
+                        f'they imply image corners 90 degrees or more off-axis (a diagonal FOV of 180 '
+                        f'degrees or more), which the {projection.name} model through a pinhole cannot represent')
     return camera
 
 
@@ -188,16 +188,17 @@ def solve_zero_shot(spec: CameraSpec, projection: str = 'auto', method: str = 'b
         f = spec.half_extents()[name] / _tan_half(deg)
         return ZeroShotSolution(spec, _make_camera(spec, proj, 0.0, f), False, {name: f}, method)
 
-    if 'hfov' in given and 'vfov' in given:
-        pair = ('hfov', 'vfov')
+    square = spec.width == spec.height
+    if 'hfov' in given and 'vfov' in given and (not square or 'dfov' not in given):
+        pair = ('hfov', 'vfov')  # the paper's case (a square image with only these fails below)
     else:
         pair = ('dfov', 'hfov' if 'hfov' in given else 'vfov')
-
-    candidates = list(PROJECTIONS) if projection == 'auto' else [projection]
-    if projection == 'auto' and not (len(given) == 3):
-        candidates = [DEFAULT_PROJECTION]
-    if len(given) == 3 and projection != 'auto':
-        candidates = list(PROJECTIONS)  # residuals of every model are reported either way
+    # Adaptive selection needs a constraint the solve did not use: dfov beside hfov + vfov.
+    selecting = len(given) == 3 and pair == ('hfov', 'vfov')
+    if selecting:
+        candidates = list(PROJECTIONS)  # residuals of every model are reported, forced or not
+    else:
+        candidates = [DEFAULT_PROJECTION if projection == 'auto' else projection]
 
     solutions, errors = {}, {}
     for name in candidates:
@@ -211,7 +212,7 @@ def solve_zero_shot(spec: CameraSpec, projection: str = 'auto', method: str = 'b
             continue
         solutions[name] = ZeroShotSolution(spec, camera, root, focal, method, iterations=iters)
 
-    if len(given) == 3:
+    if selecting:
         residuals = {n: s.camera.fields_of_view()['dfov'] - spec.dfov for n, s in solutions.items()}
         wanted = projection if projection != 'auto' else (
             min(residuals, key=lambda n: abs(residuals[n])) if residuals else None)

@@ -1,0 +1,112 @@
+"""Camera models: exact round trips, agreement with OpenCV, and the ROS distortion fits."""
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from paper_table2 import load_table2
+from zeroshot_calib_ros.core import (CameraSpec, KannalaBrandtCamera, PlumbBobCamera, ZeroShotCamera,
+                                     solve_zero_shot)
+from zeroshot_calib_ros.core.fitting import fit_kannala_brandt, fit_plumb_bob
+from zeroshot_calib_ros.core.projections import PROJECTIONS
+
+WIDE_ROWS = [r for r in load_table2() if r['omega'] and r['omega'] > 0.001]
+
+
+def image_grid(width, height, nx=97, ny=55):
+    u, v = np.meshgrid(np.linspace(0, width, nx), np.linspace(0, height, ny))
+    return np.stack([u, v], axis=-1).reshape(-1, 2)
+
+
+@pytest.mark.parametrize('row', WIDE_ROWS, ids=[r['camera'] for r in WIDE_ROWS])
+def test_opencv_fisheye_with_our_K_D_reproduces_exact_model(row):
+    """cv2.fisheye.projectPoints(K, D) vs the exact model, everywhere in the image: < 0.01 px."""
+    solution = solve_zero_shot(CameraSpec(int(row['width']), int(row['height']), row['hfov'], row['vfov']))
+    fit = fit_kannala_brandt(solution.camera)
+    pixels = image_grid(solution.camera.width, solution.camera.height)
+    xy = solution.undistort(pixels)
+    points = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)[None]
+    projected, _ = cv2.fisheye.projectPoints(points, np.zeros(3), np.zeros(3), solution.K, fit.D)
+    error = np.linalg.norm(projected[0] - pixels, axis=1).max()
+    assert error < 0.01
+    assert fit.max_error_px == pytest.approx(error, abs=2e-5)  # the reported error is the real one
+
+
+@pytest.mark.parametrize('name', list(PROJECTIONS))
+@settings(max_examples=40, deadline=None)
+@given(hfov=st.floats(60, 150), aspect=st.sampled_from([(1920, 1080), (1280, 720), (640, 480), (800, 503)]),
+       squeeze=st.floats(0.55, 0.98))
+def test_round_trip_over_the_image(name, hfov, aspect, squeeze):
+    """undistort(distort(x)) == x to 1e-9 over the whole image, for every projection."""
+    width, height = aspect
+    perspective_vfov = np.degrees(2 * np.arctan(np.tan(np.radians(hfov) / 2) * height / width))
+    vfov = float(perspective_vfov * squeeze)
+    try:
+        solution = solve_zero_shot(CameraSpec(width, height, hfov, vfov), projection=name)
+    except Exception as exc:  # a spec the model cannot represent is refused, not mis-solved
+        assert 'off-axis' in str(exc)
+        return
+    pixels = image_grid(width, height, 41, 23)
+    xy = solution.undistort(pixels)
+    assert np.all(np.isfinite(xy))
+    back = solution.distort(xy)
+    assert np.abs(back - pixels).max() < 1e-9
+    assert np.abs(solution.undistort(back) - xy).max() < 1e-9 * max(1.0, np.abs(xy).max())
+
+
+def test_predicted_fovs_reproduce_the_spec():
+    solution = solve_zero_shot(CameraSpec(1920, 1440, 122, 94))
+    fov = solution.predicted_fovs()
+    assert fov['hfov'] == pytest.approx(122, abs=1e-9) and fov['vfov'] == pytest.approx(94, abs=1e-9)
+    assert 122 < fov['dfov'] < 180
+
+
+def test_kannala_brandt_matches_opencv_both_ways():
+    D = np.array([0.05, -0.01, 0.003, -0.0004])
+    cam = KannalaBrandtCamera(610.0, 612.0, 401.0, 250.0, 800, 503, D)
+    K = cam.K
+    rng = np.random.default_rng(1)
+    rays = np.c_[rng.uniform(-1.5, 1.5, (200, 2)), np.ones(200)]
+    ours = cam.project(rays)
+    theirs, _ = cv2.fisheye.projectPoints(rays[None], np.zeros(3), np.zeros(3), K, D)
+    assert np.abs(ours - theirs[0]).max() < 1e-9
+    und = cv2.fisheye.undistortPoints(ours[None], K, D,
+                                      criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-14))
+    assert np.abs(cam.undistort(ours) - und[0]).max() < 1e-7
+    assert np.abs(cam.undistort(ours) - rays[:, :2]).max() < 1e-9
+
+
+def test_plumb_bob_matches_opencv():
+    D = np.array([-0.2, 0.05, 0.001, -0.002, 0.01])
+    cam = PlumbBobCamera(900.0, 905.0, 640.0, 360.0, 1280, 720, D)
+    rng = np.random.default_rng(2)
+    rays = np.c_[rng.uniform(-0.6, 0.6, (200, 2)), np.ones(200)]
+    theirs, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), cam.K, D)
+    assert np.abs(cam.project(rays) - theirs[:, 0]).max() < 1e-9
+    assert np.abs(cam.undistort(cam.project(rays)) - rays[:, :2]).max() < 1e-9
+
+
+def test_plumb_bob_fit_is_accurate_for_narrow_and_reports_its_failure_on_wide():
+    narrow = solve_zero_shot(CameraSpec(1280, 720, 62.8, 36.8))  # SNP-6321
+    wide = solve_zero_shot(CameraSpec(1920, 1080, 118, 69))  # Hero9 W1
+    fit_n, fit_w = fit_plumb_bob(narrow.camera), fit_plumb_bob(wide.camera)
+    pixels = image_grid(1280, 720)
+    xy = narrow.undistort(pixels)
+    projected, _ = cv2.projectPoints(np.c_[xy, np.ones(len(xy))], np.zeros(3), np.zeros(3), narrow.K, fit_n.D)
+    assert np.abs(projected[:, 0] - pixels).max() < 0.01
+    assert fit_w.max_error_px > 1.0  # a polynomial in tan(theta) cannot follow a fisheye
+
+
+def test_points_beyond_the_model_are_nan_not_wrong():
+    cam = ZeroShotCamera(500.0, 640, 360, 1280, 720, omega=1 / 500)
+    behind = cam.project(np.array([[0.1, 0.0, -1.0]]))
+    assert np.all(np.isnan(behind))
+    far = cam.unproject(np.array([[640 + 500 * np.pi / 2 * 1.01, 360]]))
+    assert np.all(np.isnan(far))
+
+
+def test_scaled_camera_keeps_the_field_of_view():
+    solution = solve_zero_shot(CameraSpec(1920, 1080, 118, 69))
+    half = solution.camera.scaled(960, 540)
+    for k, v in half.fields_of_view().items():
+        assert v == pytest.approx(solution.predicted_fovs()[k], abs=1e-9)
