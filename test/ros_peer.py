@@ -1,0 +1,138 @@
+"""A ROS participant in the test process, talking to the node under test in its own process.
+
+The node runs as the installed executable (what ``ros2 run zeroshot_calib_ros node`` starts),
+in a fresh ROS domain per test, with DDS discovery restricted to this machine.
+"""
+import itertools
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+REPO = Path(__file__).resolve().parents[1]
+NODE_EXECUTABLE = REPO / 'install' / 'zeroshot_calib_ros' / 'lib' / 'zeroshot_calib_ros' / 'node'
+DDS_PROFILE = REPO / 'config' / 'fastdds_shm.xml'
+_domains = itertools.count(1 + os.getpid() % 60)
+
+
+def ros_environment(domain_id: int) -> dict:
+    env = dict(os.environ)
+    env.update(ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               RMW_IMPLEMENTATION='rmw_fastrtps_cpp', FASTDDS_DEFAULT_PROFILES_FILE=str(DDS_PROFILE),
+               FASTRTPS_DEFAULT_PROFILES_FILE=str(DDS_PROFILE), PYTHONUNBUFFERED='1')
+    return env
+
+
+def qos(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE, depth=10):
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability,
+                      durability=durability)
+
+
+LATCHED = qos(durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class NodeProcess:
+    """The node under test in its own process; stdout/stderr collected to a file."""
+
+    def __init__(self, args, domain_id, tmp_path, name='node'):
+        if not NODE_EXECUTABLE.exists():
+            pytest.fail(f'{NODE_EXECUTABLE} is missing: build first (make build)')
+        self.log_path = tmp_path / f'{name}.log'
+        self._log = open(self.log_path, 'w')
+        self.process = subprocess.Popen([str(NODE_EXECUTABLE), *args], env=ros_environment(domain_id),
+                                        stdout=self._log, stderr=subprocess.STDOUT, cwd=str(REPO))
+
+    @property
+    def log(self) -> str:
+        return self.log_path.read_text()
+
+    def alive(self) -> bool:
+        return self.process.poll() is None
+
+    def wait(self, timeout=20.0) -> int:
+        return self.process.wait(timeout)
+
+    def stop(self):
+        if self.alive():
+            self.process.send_signal(signal.SIGINT)
+            try:
+                self.process.wait(10)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self._log.close()
+
+
+class Peer:
+    """rclpy in the test process, in its own context and domain."""
+
+    def __init__(self, domain_id: int):
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = Node('test_peer', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def spin_until(self, predicate, timeout=20.0, what='condition'):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if predicate():
+                return
+            self.executor.spin_once(timeout_sec=0.05)
+        raise AssertionError(f'timed out after {timeout:.0f} s waiting for {what}')
+
+    def spin_for(self, seconds):
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def collect(self, msg_type, topic, qos_profile):
+        received = []
+        self.node.create_subscription(msg_type, topic, received.append, qos_profile)
+        return received
+
+    def call(self, srv_type, name, request, timeout=20.0):
+        client = self.node.create_client(srv_type, name)
+        self.spin_until(lambda: client.service_is_ready(), timeout, f'service {name}')
+        future = client.call_async(request)
+        self.spin_until(future.done, timeout, f'response of {name}')
+        return future.result()
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+
+@pytest.fixture
+def domain_id():
+    return next(_domains) % 100 + 1
+
+
+@pytest.fixture
+def peer(domain_id):
+    p = Peer(domain_id)
+    yield p
+    p.close()
+
+
+@pytest.fixture
+def start_node(domain_id, tmp_path):
+    started = []
+
+    def start(*args, name='node'):
+        process = NodeProcess(list(args), domain_id, tmp_path, name=f'{name}{len(started)}')
+        started.append(process)
+        return process
+
+    yield start
+    for process in started:
+        process.stop()

@@ -1,0 +1,278 @@
+"""The installed ROS node, in its own process, seen from another process (this one)."""
+import math
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.srv import SetCameraInfo
+
+from ros_peer import LATCHED, REPO, domain_id, peer, qos, start_node  # noqa: F401 (fixtures)
+from synthetic import find_corners, line_residuals, render_checkerboard
+from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
+
+W1_ARGS = ['--ros-args', '-p', 'hfov:=118', '-p', 'vfov:=69', '-p', 'width:=1920', '-p', 'height:=1080']
+
+
+def image_msg(array, encoding, stamp_sec, frame_id='cam'):
+    msg = Image()
+    msg.header.stamp.sec = stamp_sec
+    msg.header.stamp.nanosec = 123456789
+    msg.header.frame_id = frame_id
+    msg.height, msg.width = array.shape[:2]
+    msg.encoding = encoding
+    msg.step = array.strides[0]
+    msg.data = array.tobytes()
+    return msg
+
+
+def diagnostics_value(messages, key):
+    for msg in reversed(messages):
+        for status in msg.status:
+            for kv in status.values:
+                if kv.key == key:
+                    return kv.value
+    return None
+
+
+def set_parameter(peer, name, value):
+    param = Parameter(name=name)
+    if isinstance(value, float):
+        param.value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
+    elif isinstance(value, bool):
+        param.value = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value)
+    elif isinstance(value, int):
+        param.value = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
+    else:
+        param.value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+    return peer.call(SetParameters, '/zeroshot_calib/set_parameters', SetParameters.Request(parameters=[param])).results[0]
+
+
+def test_camera_info_from_integer_command_line_parameters(peer, start_node):
+    node = start_node(*W1_ARGS)
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='camera_info')
+    info = infos[0]
+    K = np.array(info.k).reshape(3, 3)
+    assert K[0, 0] == pytest.approx(876.0, abs=0.1) and K[1, 1] == K[0, 0]
+    assert (K[0, 2], K[1, 2]) == (960.0, 540.0)
+    assert info.distortion_model == 'equidistant' and len(info.d) == 4
+    assert (info.width, info.height) == (1920, 1080)
+    assert np.allclose(np.array(info.r).reshape(3, 3), np.eye(3))
+    # D through OpenCV's fisheye model against the solver's exact model, over the whole image.
+    solution = solve_zero_shot(CameraSpec(1920, 1080, 118, 69))
+    u, v = np.meshgrid(np.linspace(0, 1920, 65), np.linspace(0, 1080, 37))
+    pixels = np.stack([u, v], -1).reshape(-1, 2)
+    xy = solution.undistort(pixels)
+    projected, _ = cv2.fisheye.projectPoints(np.c_[xy, np.ones(len(xy))][None], np.zeros(3), np.zeros(3),
+                                             K, np.array(info.d))
+    assert np.abs(projected[0] - pixels).max() < 0.01
+    # Without images: periodic, freshly stamped, with the configured frame_id.
+    peer.spin_until(lambda: len(infos) >= 4, what='periodic camera_info')
+    stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in infos[-3:]]
+    assert stamps[0] < stamps[1] < stamps[2]
+    assert infos[-1].header.frame_id == 'camera'
+    assert 'f         875.9867 px' in node.log  # the start-up block
+
+
+def test_late_joiner_gets_camera_info(peer, start_node):
+    start_node(*W1_ARGS, '-p', 'publish_rate:=0.05')  # one message every 20 s: only the latched one
+    peer.spin_for(3.0)
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, timeout=10, what='latched camera_info')
+
+
+def test_params_file_start_up(peer, start_node):
+    start_node('--ros-args', '--params-file', str(REPO / 'config' / 'c922.yaml'))
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='camera_info')
+    assert infos[0].distortion_model == 'plumb_bob' and len(infos[0].d) == 5
+    assert infos[0].k[0] == pytest.approx(907.0, abs=0.1)
+    assert infos[0].header.frame_id == 'c922_optical_frame'
+
+
+@pytest.mark.parametrize('args, parameter, allowed', [
+    (['-p', 'hfov:=200', '-p', 'vfov:=69', '-p', 'width:=1920', '-p', 'height:=1080'], 'hfov', 'less than 180'),
+    (['-p', 'hfov:=118', '-p', 'vfov:=69', '-p', 'width:=1920'], 'height', 'from 1 to 100000'),
+    (['-p', 'hfov:=118', '-p', 'width:=1920', '-p', 'height:=1080', '-p', 'balance:=3'], 'balance', 'from 0 to 1'),
+    (['-p', 'hfov:=118', '-p', 'width:=1920', '-p', 'height:=1080', '-p', 'projection:=fish'], 'projection',
+     'equidistant'),
+])
+def test_invalid_spec_exits_with_one_line(start_node, args, parameter, allowed):
+    node = start_node('--ros-args', *args)
+    assert node.wait(30) == 2
+    lines = node.log.strip().splitlines()
+    assert len(lines) == 1, node.log
+    assert lines[0].startswith(f'zeroshot_calib: error: {parameter} = ') and allowed in lines[0]
+
+
+def test_run_time_change_accepted_and_rejected(peer, start_node):
+    start_node(*W1_ARGS)
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='camera_info')
+    f0 = infos[-1].k[0]
+    result = set_parameter(peer, 'hfov', 122)  # an integer, as a user types it
+    assert result.successful, result.reason
+    peer.spin_until(lambda: abs(infos[-1].k[0] - f0) > 1, what='re-solved camera_info')
+    f1 = infos[-1].k[0]
+    expected = solve_zero_shot(CameraSpec(1920, 1080, 122, 69)).f
+    assert f1 == pytest.approx(expected, abs=1e-6)
+    # Each rejection names the parameter and its allowed range (ours, or rclpy's range check).
+    for name, value, reasons in [('hfov', 181.0, ['hfov = 181.0', 'less than 180']),
+                                 ('vfov', 'wide', ["vfov = 'wide'", 'a number']),
+                                 ('balance', 1.5, ['balance', 'Min: 0.0, Max: 1.0']),
+                                 ('projection', 'fish', ["projection = 'fish'", 'equidistant']),
+                                 ('width', 0, ['width = 0', 'from 1 to'])]:
+        result = set_parameter(peer, name, value)
+        assert not result.successful and all(r in result.reason for r in reasons), (name, result.reason)
+    n = len(infos)
+    peer.spin_until(lambda: len(infos) >= n + 3, what='camera_info after rejections')
+    assert infos[-1].k[0] == f1  # the calibration in force is kept
+
+
+def test_set_camera_info_is_persisted_and_reloaded(peer, start_node, tmp_path):
+    path = tmp_path / 'calib' / 'cam.yaml'
+    url = f'file://{path}'
+    node = start_node(*W1_ARGS, '-p', f'camera_info_url:={url}')
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='camera_info')
+    refined = CameraInfo()
+    refined.width, refined.height = 1920, 1080
+    refined.distortion_model = 'equidistant'
+    refined.k = [880.0, 0.0, 955.0, 0.0, 880.0, 545.0, 0.0, 0.0, 1.0]
+    refined.d = [0.05, -0.004, -0.001, 0.0002]
+    refined.r = np.eye(3).ravel().tolist()
+    refined.p = [700.0, 0.0, 955.0, 0.0, 0.0, 700.0, 545.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=refined))
+    assert response.success, response.status_message
+    saved = yaml.safe_load(path.read_text())
+    assert saved['camera_matrix']['data'][0] == 880.0 and saved['distortion_model'] == 'equidistant'
+    peer.spin_until(lambda: infos[-1].k[0] == 880.0, what='adopted calibration')
+    bad = CameraInfo(width=1920, height=1080, distortion_model='equidistant')
+    bad.k = [float('nan')] * 9
+    response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=bad))
+    assert not response.success and 'finite' in response.status_message
+    node.stop()
+    # Restart: the file now takes precedence over the spec.
+    infos.clear()
+    restarted = start_node(*W1_ARGS, '-p', f'camera_info_url:={url}', name='restarted')
+    peer.spin_until(lambda: infos and infos[-1].k[0] == 880.0, what='camera_info from the saved file')
+    assert list(infos[-1].p[:3]) == [700.0, 0.0, 955.0]
+    assert 'calibration loaded from' in restarted.log
+
+
+def test_rectified_stream_keeps_stamps_and_straightens_lines(peer, start_node):
+    """A checkerboard rendered through the known equidistant zero-shot camera of the spec
+    (960 x 540, hfov 118, vfov 69) goes through the node; image_rect carries each input stamp,
+    CameraInfo carries the identical stamp, and the board's rows and columns come out straight."""
+    camera = solve_zero_shot(CameraSpec(960, 540, 118, 69)).camera
+    image, _ = render_checkerboard(camera)
+    start_node('--ros-args', '-p', 'hfov:=118', '-p', 'vfov:=69', '-p', 'width:=960', '-p', 'height:=540',
+               '-p', 'rectify:=true', '-p', 'balance:=1')
+    reliable = qos(ReliabilityPolicy.RELIABLE)
+    rects = peer.collect(Image, 'image_rect', reliable)
+    infos = peer.collect(CameraInfo, 'camera_info', reliable)
+    pub = peer.node.create_publisher(Image, 'image_raw', reliable)
+    peer.spin_until(lambda: pub.get_subscription_count() > 0, what='node subscribing to image_raw')
+    peer.spin_for(1.5)  # let the node match the publisher's QoS
+    sent = []
+    for i in range(5):
+        msg = image_msg(image, 'mono8', 1000 + i)
+        sent.append((msg.header.stamp.sec, msg.header.stamp.nanosec))
+        pub.publish(msg)
+        peer.spin_for(0.2)
+    peer.spin_until(lambda: len(rects) >= 3, what='image_rect')
+    rect_stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in rects}
+    info_stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in infos if m.header.stamp.sec >= 1000}
+    assert rect_stamps <= set(sent) and rect_stamps <= info_stamps
+    assert all(m.header.frame_id == 'cam' for m in rects)
+    rect = np.frombuffer(rects[-1].data, np.uint8).reshape(540, 960)
+    corners = find_corners(rect)
+    assert corners is not None
+    residual = line_residuals(corners)
+    assert np.sqrt(np.mean(residual ** 2)) < 0.1 and residual.max() < 0.3
+    info = next(m for m in infos if m.header.stamp.sec == rects[-1].header.stamp.sec)
+    assert info.k[0] == pytest.approx(camera.f)
+
+
+def test_bad_frames_are_skipped_counted_and_survived(peer, start_node):
+    node = start_node('--ros-args', '-p', 'hfov:=118', '-p', 'vfov:=69', '-p', 'width:=640', '-p', 'height:=360',
+                      '-p', 'rectify:=true')
+    reliable = qos(ReliabilityPolicy.RELIABLE)
+    rects = peer.collect(Image, 'image_rect', reliable)
+    infos = peer.collect(CameraInfo, 'camera_info', reliable)
+    diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
+    pub = peer.node.create_publisher(Image, 'image_raw', reliable)
+    peer.spin_until(lambda: pub.get_subscription_count() > 0, what='node subscribing')
+    peer.spin_for(1.5)
+    good = np.full((360, 640, 3), 90, np.uint8)
+    bayer = image_msg(np.zeros((360, 640), np.uint8), 'bayer_rggb8', 2000)
+    wrong_aspect = image_msg(np.zeros((480, 640, 3), np.uint8), 'bgr8', 2001)
+    short = image_msg(good, 'bgr8', 2002)
+    short.data = short.data[:-10]
+    bad_step = image_msg(good, 'bgr8', 2003)
+    bad_step.step = 100
+    empty = image_msg(np.zeros((0, 0), np.uint8), 'mono8', 2004)
+    for msg in (bayer, wrong_aspect, short, bad_step, empty):
+        pub.publish(msg)
+        peer.spin_for(0.1)
+    pub.publish(image_msg(good, 'bgr8', 2005))
+    half = image_msg(np.full((180, 320), 50, np.uint8), 'mono8', 2006)
+    pub.publish(half)
+    peer.spin_until(lambda: {2005, 2006} <= {m.header.stamp.sec for m in rects}, what='good frames rectified')
+    peer.spin_until(lambda: diagnostics_value(diagnostics, 'frames_skipped_malformed') == '3',
+                    what='skip counters')
+    assert diagnostics_value(diagnostics, 'frames_skipped_encoding') == '1'
+    assert diagnostics_value(diagnostics, 'frames_skipped_aspect') == '1'
+    assert node.alive()
+    assert "encoding 'bayer_rggb8'" in node.log
+    # Same aspect, half size: scaled intrinsics, maps of its own.
+    half_info = next(m for m in infos if m.header.stamp.sec == 2006)
+    full_info = next(m for m in infos if m.header.stamp.sec == 2005)
+    assert (half_info.width, half_info.height) == (320, 180)
+    assert half_info.k[0] == pytest.approx(full_info.k[0] / 2) and half_info.k[2] == 160
+    half_rect = next(m for m in rects if m.header.stamp.sec == 2006)
+    assert (half_rect.width, half_rect.height, half_rect.encoding) == (320, 180, 'mono8')
+    # The camera_info of skipped wrong-aspect frames is not sent: no size describes them.
+    assert 2001 not in {m.header.stamp.sec for m in infos}
+
+
+@pytest.mark.parametrize('encoding, dtype, channels', [
+    ('mono16', np.uint16, 1), ('16UC1', np.uint16, 1), ('32FC1', np.float32, 1), ('rgb8', np.uint8, 3),
+    ('bgra8', np.uint8, 4), ('rgba8', np.uint8, 4)])
+def test_every_supported_encoding_is_rectified(peer, start_node, encoding, dtype, channels):
+    start_node('--ros-args', '-p', 'hfov:=100', '-p', 'vfov:=60', '-p', 'width:=160', '-p', 'height:=90',
+               '-p', 'rectify:=true', '-p', 'interpolation:=0')
+    reliable = qos(ReliabilityPolicy.RELIABLE)
+    rects = peer.collect(Image, 'image_rect', reliable)
+    pub = peer.node.create_publisher(Image, 'image_raw', reliable)
+    peer.spin_until(lambda: pub.get_subscription_count() > 0, what='node subscribing')
+    shape = (90, 160) if channels == 1 else (90, 160, channels)
+    array = np.full(shape, 300 if dtype != np.uint8 else 200, dtype)
+    peer.spin_for(1.5)
+    pub.publish(image_msg(array, encoding, 3000))
+    peer.spin_until(lambda: rects, what='image_rect')
+    rect = rects[0]
+    assert rect.encoding == encoding and rect.step == 160 * channels * np.dtype(dtype).itemsize
+    out = np.frombuffer(rect.data, dtype).reshape(shape)
+    assert np.all(out[45, 80] == array[45, 80])
+
+
+def test_camera_info_reliability_follows_the_image_publisher(peer, start_node):
+    start_node(*W1_ARGS)
+    best_effort = qos(ReliabilityPolicy.BEST_EFFORT)
+    peer.node.create_publisher(Image, 'image_raw', best_effort)
+
+    def node_info_reliability():
+        infos = peer.node.get_publishers_info_by_topic('/camera_info')
+        return infos[0].qos_profile.reliability if infos else None
+
+    peer.spin_until(lambda: node_info_reliability() == ReliabilityPolicy.BEST_EFFORT, timeout=15,
+                    what='camera_info publisher to become best effort')
+    infos = peer.node.get_publishers_info_by_topic('/camera_info')
+    assert infos[0].qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
