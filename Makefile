@@ -1,0 +1,84 @@
+# zeroshot_calib_ros: one-command development environment.
+#
+#   make test    # create .venv (ROS 2 Jazzy from PyPI wheels + colcon),
+#                # colcon-build this package into build/ install/, run pytest
+#   make run     # start the installed node with config/hero9_w1.yaml
+#
+# No system ROS installation and no sourcing of setup files are needed: the
+# recipes set PYTHONPATH / AMENT_PREFIX_PATH for the install tree themselves.
+
+# Every path is anchored at the directory of this Makefile, so that
+# `make -C <clone> test` and `make -f <clone>/Makefile test` both work.
+TOP := $(patsubst %/,%,$(dir $(abspath $(lastword $(MAKEFILE_LIST)))))
+
+PKG       := zeroshot_calib_ros
+PYTHON    ?= python3
+VENV      := $(TOP)/.venv
+VPY       := $(VENV)/bin/python
+PREFIX    := $(TOP)/install/$(PKG)
+VSTAMP    := $(VENV)/.stamp
+BSTAMP    := $(TOP)/build/.make-build.stamp
+PYTEST_ARGS ?=
+PARAMS    ?= $(TOP)/config/hero9_w1.yaml
+
+# --- environment of every ROS process started from here ------------------
+# (each only if the caller has not set it already)
+ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
+ROS_DOMAIN_ID ?= 42
+# Fast DDS 2.14 (Jazzy) reads FASTRTPS_DEFAULT_PROFILES_FILE; Fast DDS 3.x
+# reads FASTDDS_DEFAULT_PROFILES_FILE.
+FASTDDS_DEFAULT_PROFILES_FILE ?= $(TOP)/config/fastdds_shm.xml
+FASTRTPS_DEFAULT_PROFILES_FILE ?= $(FASTDDS_DEFAULT_PROFILES_FILE)
+export ROS_AUTOMATIC_DISCOVERY_RANGE RMW_IMPLEMENTATION ROS_DOMAIN_ID
+export FASTDDS_DEFAULT_PROFILES_FILE FASTRTPS_DEFAULT_PROFILES_FILE
+
+# The install tree, usable without sourcing install/setup.sh. Recursive (=)
+# so that the venv's Python version is read only when a recipe runs, i.e.
+# after .venv exists.
+PY_VER = $(shell $(VPY) -c 'import sys; print("%d.%d" % sys.version_info[:2])')
+ROS_ENV = PYTHONPATH="$(PREFIX)/lib/python$(PY_VER)/site-packages$${PYTHONPATH:+:$$PYTHONPATH}" \
+	AMENT_PREFIX_PATH="$(PREFIX):$(VENV)$${AMENT_PREFIX_PATH:+:$$AMENT_PREFIX_PATH}"
+
+SOURCES := $(addprefix $(TOP)/,setup.py setup.cfg package.xml) \
+	$(shell cd $(TOP) && find zeroshot_calib_ros config resource -type f \
+		! -name '*.pyc' ! -path '*/__pycache__/*' 2>/dev/null | sed 's|^|$(TOP)/|')
+
+.PHONY: all venv build test run clean distclean
+all: build
+
+venv: $(VSTAMP)
+
+$(VSTAMP): $(TOP)/requirements.txt
+	test -x $(VPY) || $(PYTHON) -m venv $(VENV)
+	touch $(VENV)/COLCON_IGNORE
+	$(VPY) -m pip install -q -r $(TOP)/requirements.txt
+	touch $@
+
+build: $(BSTAMP)
+
+# --paths: colcon looks at this one package only and never crawls into
+# .venv (whose site-packages ship package.xml files), build/, install/ or log/.
+# Quiet output (colcon-core's handlers only); the package's build log is shown
+# if the build fails.
+$(BSTAMP): $(VSTAMP) $(SOURCES)
+	cd $(TOP) && . $(VENV)/bin/activate && colcon --log-base log build \
+		--paths . --build-base build --install-base install \
+		--event-handlers console_start_end+ console_direct- \
+	|| { cat $(TOP)/log/latest_build/$(PKG)/stdout_stderr.log 2>/dev/null; exit 1; }
+	touch $@
+
+test: $(BSTAMP)
+	cd $(TOP) && $(ROS_ENV) $(VPY) -m pytest -q test $(PYTEST_ARGS)
+
+run: $(BSTAMP)
+	cd $(TOP) && $(ROS_ENV) $(PREFIX)/lib/$(PKG)/node --ros-args --params-file $(PARAMS)
+
+clean:
+	rm -rf $(TOP)/build $(TOP)/install $(TOP)/log $(TOP)/.pytest_cache \
+		$(TOP)/.hypothesis $(TOP)/$(PKG).egg-info
+	find $(TOP)/$(PKG) $(TOP)/test -name __pycache__ -type d -prune \
+		-exec rm -rf {} + 2>/dev/null || true
+
+distclean: clean
+	rm -rf $(VENV)

@@ -1,0 +1,34 @@
+#!/usr/bin/env python3
+"""Table 2 of the paper next to our zero-shot solution, as a markdown table.
+
+    .venv/bin/python benchmarks/paper_table2.py
+"""
+import math
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(REPO), str(REPO / 'test')]
+
+from paper_table2 import load_table2  # noqa: E402
+from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot  # noqa: E402
+from zeroshot_calib_ros.core.fitting import fit_kannala_brandt  # noqa: E402
+
+
+def main():
+    print('| camera | W x H | hfov | vfov | paper w* | ours w* | paper f* | ours f* | '
+          'ours vs f_gt | KB4 fit max err (px) |')
+    print('|---|---|---|---|---|---|---|---|---|---|')
+    for row in load_table2():
+        spec = CameraSpec(int(row['width']), int(row['height']), row['hfov'], row['vfov'])
+        solution = solve_zero_shot(spec)
+        fit = fit_kannala_brandt(solution.camera)
+        err = abs(solution.f - row['f_gt']) / row['f_gt'] * 100
+        vfov = '-' if row['vfov'] is None else f"{row['vfov']:g}"
+        print(f"| {row['camera']} | {spec.width} x {spec.height} | {row['hfov']:g} | {vfov} | "
+              f"{row['omega']:.6f} | {solution.omega:.6f} | {row['f_star']:.1f} | {solution.f:.2f} | "
+              f"{err:.1f}% | {fit.max_error_px:.1e} |")
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,88 @@
+import os
+import sys
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'zeroshot_calib_ros'
+
+
+def _colcon_style_install(argv):
+    """Return True when setup.py runs as `setup.py ... install|develop`.
+
+    The ROS executable is called `node` (so that it can be started as
+    `ros2 run zeroshot_calib_ros node`).  It must only ever be installed into
+    the package-private directory lib/zeroshot_calib_ros/, never into a
+    `bin/` directory on PATH: in a virtualenv's bin/ a script called `node`
+    would shadow Node.js.
+
+    * colcon's ament_python build runs setup.py directly, as
+      `setup.py egg_info ... build ... install --install-scripts
+      <prefix>/lib/zeroshot_calib_ros ...` or, with --symlink-install,
+      `setup.py develop --editable ...`; the script directories come from
+      setup.cfg ([install] install_scripts / [develop] script_dir).
+    * pip (`pip install .`, `pip wheel .`, also editable installs through
+      PEP 660) builds a wheel through the PEP 517 backend, which runs
+      setup.py with `bdist_wheel`, `dist_info`, `egg_info` or
+      `editable_wheel`, never `install` or `develop`, and a wheel's console
+      scripts always land in bin/.  So `node` is declared only for the
+      former.
+
+    One more guard: inside a virtualenv setuptools ignores setup.cfg's
+    install_scripts, so a bare `python setup.py install` there would put the
+    scripts in the venv's bin/.  colcon always passes --install-scripts on
+    the command line (for exactly that reason), so in a venv `install`
+    counts only together with an explicit --install-scripts.
+    (`develop` honours setup.cfg's script_dir even in a venv.)
+    """
+    args = argv[1:]
+    if 'develop' in args:
+        return True
+    if 'install' in args:
+        in_venv = sys.prefix != sys.base_prefix
+        explicit_scripts_dir = any(
+            a == '--install-scripts' or a.startswith('--install-scripts=')
+            for a in args)
+        return explicit_scripts_dir or not in_venv
+    return False
+
+
+console_scripts = ['zeroshot-calib = zeroshot_calib_ros.cli:main']
+if _colcon_style_install(sys.argv):
+    console_scripts.append('node = zeroshot_calib_ros.node:main')
+
+config_files = sorted(
+    glob(os.path.join('config', '*.yaml'))
+    + glob(os.path.join('config', '*.yml'))
+    + glob(os.path.join('config', '*.xml'))
+    + glob(os.path.join('config', '*.launch.py')))
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages',
+            ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', config_files),
+    ],
+    install_requires=[
+        'numpy',
+        'scipy',
+        'opencv-python-headless>=4.8,<6',
+        'pyyaml',
+    ],
+    zip_safe=True,
+    maintainer='Zeroshot Calib Maintainers',
+    maintainer_email='maintainers@zeroshot-calib.dev',
+    description=(
+        'Zero-shot calibration of wide-angle and fisheye cameras from their '
+        'spec-sheet field of view (J.-Y. Lee, CVPR 2021): CameraInfo '
+        'publisher and rectifier.'),
+    license='Apache-2.0',
+    python_requires='>=3.10',
+    entry_points={
+        'console_scripts': console_scripts,
+    },
+)

@@ -1,0 +1,116 @@
+"""Packaging checks: the colcon install tree, the pip wheel, package.xml.
+
+Runs after `make build` (as part of `make test`): it looks at the install
+tree colcon produced under install/, and builds a wheel of a copy of the
+sources with pip, to check that the ROS executable `node` is only ever
+installed into lib/zeroshot_calib_ros/ and never into a bin/ directory (where
+it would shadow Node.js).
+"""
+
+import configparser
+import os
+import shutil
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PKG = 'zeroshot_calib_ros'
+INSTALL = ROOT / 'install' / PKG
+LIBEXEC = INSTALL / 'lib' / PKG
+
+EXEC_DEPENDS = {
+    'rclpy', 'rcl_interfaces', 'sensor_msgs', 'diagnostic_msgs', 'python3-numpy', 'python3-scipy',
+    'python3-opencv', 'python3-yaml',
+}
+TEST_DEPENDS = {'python3-pytest'}
+
+
+@pytest.fixture(scope='module')
+def source_copy(tmp_path_factory):
+    """The package's sources copied to a temporary dir (repo stays clean)."""
+    dst = tmp_path_factory.mktemp('src') / PKG
+    dst.mkdir()
+    for name in ('setup.py', 'setup.cfg', 'package.xml'):
+        shutil.copy2(ROOT / name, dst / name)
+    ignore = shutil.ignore_patterns('__pycache__', '*.pyc', '*.egg-info')
+    for name in ('resource', 'config', PKG):
+        if (ROOT / name).is_dir():
+            shutil.copytree(ROOT / name, dst / name, ignore=ignore)
+    return dst
+
+
+def _require_install_tree():
+    if not LIBEXEC.is_dir():
+        pytest.fail(f'{LIBEXEC} does not exist: run `make build` first')
+
+
+@pytest.mark.parametrize('name', ['node', 'zeroshot-calib'])
+def test_colcon_installs_executables_into_libexec(name):
+    _require_install_tree()
+    exe = LIBEXEC / name
+    assert exe.is_file(), f'{exe} missing'
+    assert os.access(exe, os.X_OK), f'{exe} is not executable'
+    shebang = exe.read_text().splitlines()[0]
+    assert shebang.startswith('#!')
+    interpreter = shebang[2:].strip().split()[0]
+    assert os.access(interpreter, os.X_OK), f'{exe}: bad interpreter {interpreter}'
+
+
+def test_no_node_in_any_bin_dir():
+    _require_install_tree()
+    bin_dirs = [ROOT / '.venv' / 'bin']
+    bin_dirs += [p for p in (ROOT / 'install').rglob('bin') if p.is_dir()]
+    for d in bin_dirs:
+        assert not (d / 'node').exists(), f'{d / "node"} exists (would shadow Node.js)'
+    # and in the install tree, `node` lives in lib/zeroshot_calib_ros only
+    found = sorted(p for p in (ROOT / 'install').rglob('node') if p.is_file())
+    assert found == [LIBEXEC / 'node'], found
+
+
+def test_pip_wheel_has_no_node_entry_point(source_copy, tmp_path):
+    out = tmp_path / 'wheels'
+    proc = subprocess.run(
+        [sys.executable, '-m', 'pip', 'wheel', '--no-deps', '--no-build-isolation',
+         '--no-cache-dir', '-q', '-w', str(out), str(source_copy)],
+        cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    wheels = list(out.glob('*.whl'))
+    assert len(wheels) == 1, wheels
+    with zipfile.ZipFile(wheels[0]) as zf:
+        names = zf.namelist()
+        ep_files = [n for n in names if n.endswith('.dist-info/entry_points.txt')]
+        assert len(ep_files) == 1, names
+        parser = configparser.ConfigParser()
+        parser.optionxform = str  # keep names as they are
+        parser.read_string(zf.read(ep_files[0]).decode())
+    scripts = dict(parser.items('console_scripts'))
+    assert scripts.get('zeroshot-calib') == 'zeroshot_calib_ros.cli:main'
+    assert 'node' not in scripts, scripts
+    assert not any(n.endswith('/scripts/node') for n in names), names
+
+
+def _setup_py_version(src):
+    proc = subprocess.run([sys.executable, 'setup.py', '--version'], cwd=src,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return proc.stdout.strip().splitlines()[-1].strip()
+
+
+def test_package_xml(source_copy):
+    root = ET.parse(ROOT / 'package.xml').getroot()
+    assert root.tag == 'package'
+    assert root.get('format') == '3'
+    assert root.findtext('name') == PKG
+    assert {e.text for e in root.findall('exec_depend')} >= EXEC_DEPENDS
+    assert {e.text for e in root.findall('test_depend')} >= TEST_DEPENDS
+    assert root.findtext('export/build_type') == 'ament_python'
+    assert root.findtext('license') == 'Apache-2.0'
+    maintainer = root.find('maintainer')
+    assert maintainer is not None and maintainer.get('email') == 'maintainers@zeroshot-calib.dev'
+    version = root.findtext('version')
+    assert version and version == _setup_py_version(source_copy)
