@@ -17,6 +17,9 @@ VENV      := $(TOP)/.venv
 VPY       := $(VENV)/bin/python
 PREFIX    := $(TOP)/install/$(PKG)
 VSTAMP    := $(VENV)/.stamp
+# Ubuntu 24.04's numpy / SciPy / OpenCV 4 (what ROS 2 Jazzy users have), for the ROS-free tests
+LIBS_VENV := $(TOP)/.venv-jazzy-libs
+LSTAMP    := $(LIBS_VENV)/.stamp
 BSTAMP    := $(TOP)/build/.make-build.stamp
 PYTEST_ARGS ?=
 PARAMS    ?= $(TOP)/config/hero9_w1.yaml
@@ -44,7 +47,7 @@ SOURCES := $(addprefix $(TOP)/,setup.py setup.cfg package.xml) \
 	$(shell cd $(TOP) && find zeroshot_calib_ros config resource -type f \
 		! -name '*.pyc' ! -path '*/__pycache__/*' 2>/dev/null | sed 's|^|$(TOP)/|')
 
-.PHONY: all venv build test run clean distclean
+.PHONY: all venv build test test-ros test-jazzy-libs run clean distclean
 all: build
 
 venv: $(VSTAMP)
@@ -53,6 +56,12 @@ $(VSTAMP): $(TOP)/requirements.txt
 	test -x $(VPY) || $(PYTHON) -m venv $(VENV)
 	touch $(VENV)/COLCON_IGNORE
 	$(VPY) -m pip install -q -r $(TOP)/requirements.txt
+	touch $@
+
+$(LSTAMP): $(TOP)/requirements-jazzy-libs.txt
+	test -x $(LIBS_VENV)/bin/python || $(PYTHON) -m venv $(LIBS_VENV)
+	touch $(LIBS_VENV)/COLCON_IGNORE
+	$(LIBS_VENV)/bin/python -m pip install -q -r $(TOP)/requirements-jazzy-libs.txt
 	touch $@
 
 build: $(BSTAMP)
@@ -68,8 +77,14 @@ $(BSTAMP): $(VSTAMP) $(SOURCES)
 	|| { cat $(TOP)/log/latest_build/$(PKG)/stdout_stderr.log 2>/dev/null; exit 1; }
 	touch $@
 
-test: $(BSTAMP)
+# Everything with ROS and the newest libraries, then the ROS-free tests on Jazzy's libraries.
+test: test-ros test-jazzy-libs
+
+test-ros: $(BSTAMP)
 	cd $(TOP) && $(ROS_ENV) $(VPY) -m pytest -q test $(PYTEST_ARGS)
+
+test-jazzy-libs: $(LSTAMP)
+	cd $(TOP) && ZEROSHOT_ROS_FREE_ONLY=1 $(LIBS_VENV)/bin/python -m pytest -q test $(PYTEST_ARGS)
 
 run: $(BSTAMP)
 	cd $(TOP) && $(ROS_ENV) $(PREFIX)/lib/$(PKG)/node --ros-args --params-file $(PARAMS)
@@ -81,4 +96,4 @@ clean:
 		-exec rm -rf {} + 2>/dev/null || true
 
 distclean: clean
-	rm -rf $(VENV)
+	rm -rf $(VENV) $(LIBS_VENV)

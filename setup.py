@@ -70,7 +70,7 @@ setup(
     install_requires=[
         'numpy',
         'scipy',
-        'opencv-python-headless>=4.8,<6',
+        'opencv-python-headless>=4.6,<6',
         'pyyaml',
     ],
     zip_safe=True,

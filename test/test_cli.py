@@ -43,7 +43,7 @@ def test_batch_reports_bad_rows_and_goes_on(tmp_path, capsys):
     csv_path = tmp_path / 'cams.csv'
     csv_path.write_text('name,width,height,hfov,vfov,dfov\n'
                         'w1,1920,1080,118,69,\n'
-                        'broken,1920,1080,200,69,\n'
+                        'broken,1920,1080,-5,69,\n'
                         'c905,1280,720,63.1,,\n'
                         'typo,1280,72O,90,60,\n')
     yaml_dir = tmp_path / 'yaml'
@@ -51,7 +51,7 @@ def test_batch_reports_bad_rows_and_goes_on(tmp_path, capsys):
     lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert [r['name'] for r in lines] == ['w1', 'broken', 'c905', 'typo']
     assert 'error' not in lines[0] and lines[0]['f'] == pytest.approx(876.0, abs=0.05)
-    assert lines[1]['row'] == 2 and 'hfov = 200.0' in lines[1]['error']
+    assert lines[1]['row'] == 2 and 'hfov = -5.0' in lines[1]['error']
     assert lines[2]['omega'] == 0
     assert "height = '72O'" in lines[3]['error']
     assert sorted(p.name for p in yaml_dir.iterdir()) == ['c905.yaml', 'w1.yaml']

@@ -97,7 +97,7 @@ def test_params_file_start_up(peer, start_node):
 
 
 @pytest.mark.parametrize('args, parameter, allowed', [
-    (['-p', 'hfov:=200', '-p', 'vfov:=69', '-p', 'width:=1920', '-p', 'height:=1080'], 'hfov', 'less than 180'),
+    (['-p', 'hfov:=400', '-p', 'vfov:=69', '-p', 'width:=1920', '-p', 'height:=1080'], 'hfov', 'less than 360'),
     (['-p', 'hfov:=118', '-p', 'vfov:=69', '-p', 'width:=1920'], 'height', 'from 1 to 100000'),
     (['-p', 'hfov:=118', '-p', 'width:=1920', '-p', 'height:=1080', '-p', 'balance:=3'], 'balance', 'from 0 to 1'),
     (['-p', 'hfov:=118', '-p', 'width:=1920', '-p', 'height:=1080', '-p', 'projection:=fish'], 'projection',
@@ -123,7 +123,7 @@ def test_run_time_change_accepted_and_rejected(peer, start_node):
     expected = solve_zero_shot(CameraSpec(1920, 1080, 122, 69)).f
     assert f1 == pytest.approx(expected, abs=1e-6)
     # Each rejection names the parameter and its allowed range (ours, or rclpy's range check).
-    for name, value, reasons in [('hfov', 181.0, ['hfov = 181.0', 'less than 180']),
+    for name, value, reasons in [('hfov', 400.0, ['hfov = 400.0', 'less than 360']),
                                  ('vfov', 'wide', ["vfov = 'wide'", 'a number']),
                                  ('balance', 1.5, ['balance', 'Min: 0.0, Max: 1.0']),
                                  ('projection', 'fish', ["projection = 'fish'", 'equidistant']),

@@ -1,0 +1,24 @@
+"""Test session set-up.
+
+``make test`` runs the suite twice: everything in the ROS environment (.venv: ROS 2 Jazzy,
+current numpy / OpenCV 5), then the ROS-free tests in .venv-jazzy-libs, which has the
+numpy / SciPy / OpenCV 4 versions of Ubuntu 24.04, the platform of ROS 2 Jazzy
+(ZEROSHOT_ROS_FREE_ONLY=1). Modules that need rclpy or the colcon install tree are left out of
+that second run only.
+"""
+import os
+
+NEEDS_ROS = ['test_node.py', 'test_reliability.py', 'test_packaging.py']
+
+ROS_FREE_ONLY = os.environ.get('ZEROSHOT_ROS_FREE_ONLY') == '1'
+collect_ignore = NEEDS_ROS if ROS_FREE_ONLY else []
+
+
+def pytest_report_header(config):
+    import cv2
+    import numpy
+    import scipy
+    header = f'numpy {numpy.__version__}, scipy {scipy.__version__}, OpenCV {cv2.__version__}'
+    if ROS_FREE_ONLY:
+        header += f"; ROS-free run: {', '.join(NEEDS_ROS)} not collected"
+    return header
