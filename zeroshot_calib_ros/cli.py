@@ -3,6 +3,8 @@
     zeroshot-calib solve --width 1920 --height 1080 --hfov 118 --vfov 69 [--json] [--yaml FILE]
     zeroshot-calib solve --batch cameras.csv [--yaml-dir DIR]
     zeroshot-calib rectify IN.png -o OUT.png --hfov 118 --vfov 69
+    zeroshot-calib calibrate 'images/*.png' [--board 8x6 --square 0.108] [--hfov H --vfov V] [--single IMG]
+    zeroshot-calib evaluate 'images/*.png' --hfov H --vfov V [--json] [--save-corners FILE]
 
 Errors exit with status 2 and one line on stderr, never a traceback.
 """
@@ -10,14 +12,20 @@ from __future__ import annotations
 
 import argparse
 import csv
+import glob
 import json
+import math
 import os
 import sys
 
 import cv2
 
+from .core.calibration import as_solution, calibrate
 from .core.calibration_file import (DISTORTION_MODELS, CalibrationFileError, CameraCalibration,
                                     solution_summary, summary_text)
+from .core.camera_models import camera_from_calibration
+from .core.corners import CornerSet, detect_corners, parse_board
+from .core.evaluation import evaluate, evaluation_to_dict, format_tables, reprojection_error
 from .core.rectify import INTERPOLATIONS, Rectifier
 from .core.solver import PROJECTION_CHOICES, NoConvergence, solve_zero_shot
 from .core.spec import CameraSpec, SpecError
@@ -137,6 +145,175 @@ def _cmd_rectify(args):
     return 0
 
 
+# -- calibrate / evaluate: chessboard calibration and the paper's evaluation protocol --------------
+
+
+def _add_corner_arguments(parser):
+    parser.add_argument('images', nargs='*', help='chessboard images: files or glob patterns')
+    parser.add_argument('--corners', metavar='FILE',
+                        help='a corners file (JSON, see docs/calibration.md) instead of images')
+    parser.add_argument('--board', default='8x6',
+                        help='inner corners COLSxROWS, as OpenCV patternSize (default 8x6)')
+    parser.add_argument('--square', type=float, default=0.108, help='square side in metres (default 0.108)')
+    parser.add_argument('--skip-missing', action='store_true',
+                        help='leave out (and list on stderr) images whose board is not found, '
+                             'instead of failing')
+    parser.add_argument('--save-corners', metavar='FILE', help='write the detected corners to FILE')
+    parser.add_argument('--hfov', type=float, help='spec-sheet horizontal field of view (deg)')
+    parser.add_argument('--vfov', type=float, help='spec-sheet vertical field of view (deg)')
+    parser.add_argument('--dfov', type=float, help='spec-sheet diagonal field of view (deg)')
+
+
+def _image_paths(patterns):
+    paths = []
+    for pattern in patterns:
+        if any(ch in pattern for ch in '*?['):
+            found = sorted(glob.glob(pattern))
+            if not found:
+                raise CliError(f'no image matches {pattern}')
+            paths += found
+        else:
+            paths.append(pattern)
+    return paths
+
+
+def _corner_set(args, single=None):
+    """The CornerSet of the images / --corners file; writes --save-corners."""
+    if args.corners and args.images:
+        raise CliError('give chessboard images or --corners FILE, not both')
+    if args.corners:
+        corners = CornerSet.load(args.corners)
+    else:
+        paths = _image_paths(args.images) or ([single] if single else [])
+        if not paths:
+            raise CliError('no input: give chessboard images or --corners FILE')
+        corners = detect_corners(paths, parse_board(args.board, args.square), args.skip_missing)
+        if corners.missing:
+            print(f'zeroshot-calib: warning: board {corners.board.size} not found in '
+                  f'{len(corners.missing)} of {len(paths)} images, left out: '
+                  f'{", ".join(os.path.basename(p) for p in corners.missing)}', file=sys.stderr)
+    if args.save_corners:
+        corners.save(args.save_corners)
+    return corners
+
+
+def _fov_spec(args, corners):
+    if args.hfov is None and args.vfov is None and args.dfov is None:
+        return None
+    return CameraSpec(corners.width, corners.height, args.hfov, args.vfov, args.dfov)
+
+
+def _json_safe(value):
+    """NaN / inf -> null, numpy -> Python, so --json prints strict JSON."""
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if hasattr(value, 'tolist'):
+        return _json_safe(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _cmd_calibrate(args):
+    corners = _corner_set(args, args.single)
+    views = None
+    if args.single:
+        if os.path.basename(args.single) in {os.path.basename(p) for p in corners.missing}:
+            raise CliError(f'board {corners.board.size} not found in {args.single}')
+        views = [corners.index(args.single)]
+    spec = _fov_spec(args, corners)
+    principal_point = {'auto': None, 'fixed': False, 'free': True}[args.principal_point]
+    result = calibrate(corners, 'fc+zs' if spec is not None else 'fc', views, spec, principal_point)
+    if not result.ok:
+        raise CliError(f'calibration failed: {result.error}')
+    solution = as_solution(result, spec)
+    calibration, fit = CameraCalibration.from_solution(solution, args.distortion_model, args.balance,
+                                                       args.fov_scale, args.camera_name)
+    summary = solution_summary(solution, calibration, fit)
+    used = [corners.names[v] for v in result.views]
+    summary.update({
+        'method': result.label, 'init': result.init, 'a': solution.omega * solution.f,
+        'principal_point': 'fixed' if result.fixed_principal_point else 'free',
+        'images': len(used), 'image_names': used,
+        'board': {'cols': corners.board.cols, 'rows': corners.board.rows, 'square': corners.board.square},
+        'rms_px': result.rms_px, 'notes': list(result.notes),
+    })
+    if views is not None and len(corners) > 1:
+        summary['eps_all_px'] = reprojection_error(result.camera, corners).rms
+    if solution.camera.beyond_domain():
+        summary['notes'].append('the image corners are 90 degrees or more off-axis in the calibrated '
+                                f'model; {calibration.distortion_model} coefficients are fitted up to '
+                                '90 degrees and extrapolate beyond')
+    if args.yaml:
+        calibration.save(args.yaml)
+    if args.json:
+        print(json.dumps(_json_safe(summary)))
+        return 0
+    lines = summary_text(summary).splitlines()
+    if spec is None:
+        lines[0] = f"camera    {summary['width']} x {summary['height']} px, no spec (default start)"
+    lines += [
+        f"method    {summary['method']} (start: {result.init}), principal point {summary['principal_point']}",
+        f"images    {len(used)}" + (f" ({os.path.basename(used[0])})" if len(used) == 1 else '')
+        + f", board {corners.board.size}, square {corners.board.square:g} m",
+        f"rms       {result.rms_px:.4f} px (reprojection, on the calibration images)",
+    ]
+    if 'eps_all_px' in summary:
+        lines.append(f"eps all   {summary['eps_all_px']:.4f} px (eq. 20 on all {len(corners)} images)")
+    lines += [f'note      {n}' for n in summary['notes']]
+    if args.yaml:
+        lines.append(f'wrote {args.yaml}')
+    print('\n'.join(lines))
+    return 0
+
+
+def _evaluation_spec(args, corners):
+    """(spec, spec_source, reference camera, reference_source) from the FOV flags or --spec-from."""
+    if not args.spec_from:
+        if args.spec_from_model:
+            raise CliError('--spec-from-model needs --spec-from FILE')
+        return _fov_spec(args, corners), 'spec sheet (command line)', None, ''
+    if args.hfov is not None or args.vfov is not None or args.dfov is not None:
+        raise CliError('give --spec-from FILE or --hfov / --vfov / --dfov, not both')
+    source = CameraCalibration.load(args.spec_from)
+    model = args.spec_from_model or source.distortion_model
+    if (source.width, source.height) != (corners.width, corners.height):
+        raise CliError(f'{args.spec_from} is {source.width}x{source.height} but the images are '
+                       f'{corners.width}x{corners.height}')
+    camera = camera_from_calibration(model, source.K, source.D, source.width, source.height)
+    fovs = camera.fields_of_view()
+    spec = CameraSpec(corners.width, corners.height, hfov=fovs['hfov'], vfov=fovs['vfov'])
+    text = (f'no spec sheet: hfov / vfov derived from {args.spec_from} read as {model}, the angles between '
+            'the rays of (0, cy)-(W, cy) and (cx, 0)-(cx, H)')
+    return spec, text, camera, f'{args.spec_from} ({model})'
+
+
+def _cmd_evaluate(args):
+    corners = _corner_set(args)
+    spec, spec_source, reference, reference_source = _evaluation_spec(args, corners)
+    if args.runs is not None and args.runs < 1:
+        raise CliError(f'--runs {args.runs} is invalid: allowed: 1 or more')
+    runs = None if args.runs is None else list(range(min(args.runs, len(corners))))
+    if args.name:
+        name = args.name
+    elif args.corners:
+        name = os.path.splitext(os.path.basename(args.corners))[0]
+    else:
+        name = os.path.basename(os.path.dirname(os.path.abspath(corners.names[0]))) or 'camera'
+    progress = None
+    if args.progress:
+        progress = lambda m: print(f'zeroshot-calib: {m}', file=sys.stderr, flush=True)  # noqa: E731
+    result = evaluate(corners, spec, shots=args.shots, runs=runs, name=name, spec_source=spec_source,
+                      reference=reference, reference_source=reference_source, progress=progress)
+    if args.json:
+        print(json.dumps(_json_safe(evaluation_to_dict(result))))
+    else:
+        print(format_tables(result))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='zeroshot-calib',
@@ -166,6 +343,35 @@ def build_parser() -> argparse.ArgumentParser:
     rectify.add_argument('--interpolation', type=int, default=1, choices=sorted(INTERPOLATIONS),
                          help='0 nearest, 1 linear, 2 cubic, 4 lanczos4 (default 1)')
     rectify.set_defaults(run=_cmd_rectify)
+    calib = sub.add_parser('calibrate', help='calibrate from chessboard images or a corners file '
+                                             '(FC_eq.d., zero-shot start when a spec is given)')
+    _add_corner_arguments(calib)
+    calib.add_argument('--single', metavar='IMAGE',
+                       help='single-shot: calibrate on this image only (one of the inputs, a name in '
+                            '--corners, or an image file on its own)')
+    calib.add_argument('--principal-point', default='auto', choices=('auto', 'fixed', 'free'),
+                       help='fixed at the image centre or free; auto: free from 3 images on (default)')
+    _add_output_arguments(calib)
+    calib.add_argument('--camera-name', default='camera', help='camera_name in the YAML file')
+    calib.add_argument('--json', action='store_true', help='print one JSON object')
+    calib.add_argument('--yaml', metavar='FILE', help='write a camera_info_manager calibration file')
+    calib.set_defaults(run=_cmd_calibrate)
+
+    ev = sub.add_parser('evaluate', help="the paper's evaluation (Tables 3 and 4 layouts) on chessboard "
+                                         'images or a corners file')
+    _add_corner_arguments(ev)
+    ev.add_argument('--spec-from', metavar='CALIB.yaml',
+                    help='no spec sheet: derive hfov / vfov from this calibration file (also shown '
+                         'as the reference camera)')
+    ev.add_argument('--spec-from-model', choices=('equidistant', 'plumb_bob'),
+                    help="read --spec-from's coefficients as this model (default: its distortion_model)")
+    ev.add_argument('--shots', type=int, default=1,
+                    help='images per calibration in Table 4 (1: single-shot, default; 0: no Table 4)')
+    ev.add_argument('--runs', type=int, help='only the first N single-shot runs (quicker, partial)')
+    ev.add_argument('--name', help='camera name in the tables (default: the image folder / file name)')
+    ev.add_argument('--json', action='store_true', help='print one JSON object')
+    ev.add_argument('--progress', action='store_true', help='report progress on stderr')
+    ev.set_defaults(run=_cmd_evaluate)
     return parser
 
 

@@ -1,0 +1,541 @@
+"""Calibration from chessboard corners: the paper's FC_eq.d. and the OpenCV baselines.
+
+Methods (``METHODS``), each on all images (full), on one image (single-shot) or on a few
+(few-shot), chosen by ``views``:
+
+``fc``       FC_eq.d. (paper sec. 3, baselines): the paper's model ``ZeroShotCamera`` (pinhole
+             focal f, equidistant distortion map G_w, principal point at the image centre or free)
+             fitted by Levenberg-Marquardt-type trust-region least squares
+             (``scipy.optimize.least_squares``, 'trf' with ``x_scale='jac'``) on the pixel
+             reprojection error over f, w and every image's (rvec, tvec). Initialised from a
+             default camera: the equidistant fisheye r = f theta whose 180 degrees span the
+             longer image side (f = max(W, H) / pi, w f = 1; OpenCV fisheye's own default focal),
+             extrinsics from robust PnP through that camera.
+``fc+zs``    The same, initialised from the zero-shot solution of the spec sheet (paper sec. 4,
+             "FC + ZS" of Table 4).
+``zhang``    ``cv2.calibrateCamera`` with default flags (plumb_bob k1, k2, p1, p2, k3).
+``fisheye``  ``cv2.fisheye.calibrate`` (Kannala-Brandt k1..k4) with RECOMPUTE_EXTRINSIC and
+             FIX_SKEW, as ROS's camera_calibration. OpenCV's implicit start values are tried
+             first; if that raises, OpenCV's documented defaults (f = max(W, H) / pi, centred
+             principal point) are passed explicitly with USE_INTRINSIC_GUESS. A run that still
+             raises is returned as failed (``ok=False`` with OpenCV's message), never dropped.
+
+The FC parameters are f, s = (w f)^2 (w f enters the model only squared, and s keeps a
+non-zero gradient at the pinhole w = 0, where w itself has none) and optionally cx, cy.
+Residuals are vectorised over all images; the Jacobian is central differences exploiting its
+structure: the intrinsic columns are dense, each image's 6 extrinsic columns touch only that
+image's rows, so all images' j-th extrinsic column costs one pair of evaluations. The paper's
+model cannot image rays 90 degrees or more off-axis, so each corner also carries a residual that
+is zero inside that domain and steep outside it (``DOMAIN_WEIGHT``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import List, Optional, Sequence
+
+import cv2
+import numpy as np
+from scipy import sparse
+from scipy.optimize import brentq, least_squares
+
+from .camera_models import (CameraModel, KannalaBrandtCamera, PinholeCamera, PlumbBobCamera,
+                            ZeroShotCamera)
+from .corners import MIN_CORNERS_PER_IMAGE, CornerSet
+from .pose import board_poses, transform
+from .projections import PROJECTIONS, FisheyeProjection
+from .solver import solve_zero_shot
+from .spec import CameraSpec, SpecError
+
+METHODS = ('fc', 'fc+zs', 'zhang', 'fisheye')
+METHOD_LABELS = {'fc': 'FC_eq.d.', 'fc+zs': 'FC_eq.d.+ZS', 'zhang': 'Zhang',
+                 'fisheye': 'OpenCV fisheye'}
+DENSE_UP_TO_VIEWS = 1
+"""FC uses a dense Jacobian (exact trust-region solve) up to this many images, a sparse one
+(trust region solved by LSMR) above: a dense SVD of the full problem costs far more."""
+MIN_VIEWS_FREE_PRINCIPAL_POINT = 3
+"""With ``principal_point=None`` FC frees cx, cy from this many images on; with fewer (single- and
+two-shot) it stays at the image centre, the paper's model assumption (sec. 2.1): one planar
+view barely constrains it and freeing it lets a single-shot fit overfit."""
+
+
+class CalibrationError(ValueError):
+    """The input cannot be calibrated (too few corners or images, no spec for ZS...)."""
+
+
+@dataclass
+class CalibrationResult:
+    """One calibration run. ``ok`` False: the method failed; ``error`` says how."""
+
+    method: str
+    views: tuple
+    """Indices of the images (in the CornerSet) it was calibrated on."""
+    camera: Optional[CameraModel] = None
+    ok: bool = True
+    error: str = ''
+    rms_px: float = float('nan')
+    """The calibration's own RMS reprojection error over its images (eq. 20 form, its own poses)."""
+    opencv_rms: Optional[float] = None
+    """What OpenCV returned as RMS (OpenCV baselines only)."""
+    rvecs: Optional[np.ndarray] = None
+    tvecs: Optional[np.ndarray] = None
+    init: str = ''
+    """How the intrinsics were initialised."""
+    initial_camera: Optional[CameraModel] = None
+    fixed_principal_point: Optional[bool] = None
+    nfev: int = 0
+    notes: List[str] = field(default_factory=list)
+
+    @property
+    def label(self) -> str:
+        return METHOD_LABELS.get(self.method, self.method)
+
+    def extrinsics(self):
+        """[(rvec, tvec)] per calibrated image, or None."""
+        if self.rvecs is None:
+            return None
+        return list(zip(self.rvecs, self.tvecs))
+
+
+# ---------------------------------------------------------------------------------------------
+# Start cameras: default, zero-shot, perspective
+
+
+def default_camera(width: int, height: int, projection: str = 'equidistant') -> ZeroShotCamera:
+    """The no-spec start: r = f theta with 180 degrees across the longer side (w f = 1)."""
+    f = max(width, height) / math.pi
+    return ZeroShotCamera(f, width / 2.0, height / 2.0, width, height, 1.0 / f, PROJECTIONS[projection])
+
+
+def _equidistant_zero_shot(spec: CameraSpec) -> ZeroShotCamera:
+    """The paper's zero-shot equations (sec. 2.5, J(w) = 0) for hfov + vfov with the equidistant
+    G_w, without the solver's check that the image corners stay below 90 degrees off-axis."""
+    W, H = spec.width, spec.height
+    (r_a, t_a), (r_b, t_b) = sorted([(W / 2.0, math.tan(math.radians(spec.hfov) / 2)),
+                                     (H / 2.0, math.tan(math.radians(spec.vfov) / 2))], reverse=True)
+    if r_a == r_b or t_b / t_a >= r_b / r_a:
+        raise SpecError('vfov', spec.vfov, f'a barrel-distorted pair with hfov = {spec.hfov:g}',
+                        'no zero-shot root')
+
+    def j_stable(omega):
+        return t_b / t_a - math.tan(omega * r_b) / math.tan(omega * r_a)
+
+    hi = np.nextafter(math.pi / 2 / r_a, 0.0)
+    omega = brentq(j_stable, 1e-300, hi, xtol=1e-300, rtol=4 * np.finfo(float).eps, maxiter=500)
+    f = math.tan(omega * r_a) / (omega * t_a)
+    return ZeroShotCamera(f, W / 2.0, H / 2.0, W, H, omega, PROJECTIONS['equidistant'])
+
+
+def zero_shot_camera(spec: CameraSpec, width: Optional[int] = None, height: Optional[int] = None):
+    """(ZeroShotCamera, note) of ``spec`` with the paper's equidistant model, at ``width`` x
+    ``height`` (a spec at another resolution of the same aspect is scaled).
+
+    ``solve_zero_shot`` refuses specs whose image *corners* would be 90 degrees or more off-axis
+    (they cannot be rectified to a pinhole). Board corners well inside the image can still be
+    mapped, so for calibration and evaluation such an hfov + vfov spec is solved with the same
+    equations without that check, and ``note`` says so (empty otherwise).
+    """
+    note = ''
+    try:
+        camera = solve_zero_shot(spec, 'equidistant').camera
+    except SpecError as exc:
+        if spec.hfov is None or spec.vfov is None or spec.hfov >= 180 or spec.vfov >= 180:
+            raise
+        try:
+            camera = _equidistant_zero_shot(spec)
+        except (SpecError, ValueError, ZeroDivisionError):
+            raise exc from None
+        if camera.omega * camera.corner_radius() < math.pi / 2:
+            raise  # refused for another reason: keep the solver's verdict
+        note = ('solve_zero_shot refuses this spec (its image corners would be 90 degrees or more '
+                "off-axis); the paper's zero-shot equations (sec. 2.5) solved without that check give "
+                f'f = {camera.f:.4g} px, w = {camera.omega:.6g} /px, a camera defined within '
+                f'{math.pi / 2 / camera.omega:.1f} px of the image centre')
+    width = spec.width if width is None else width
+    height = spec.height if height is None else height
+    if (width, height) != (spec.width, spec.height):
+        if width * spec.height != height * spec.width:
+            raise CalibrationError(f'the spec is {spec.width}x{spec.height} but the images are '
+                                   f'{width}x{height}: aspect ratios differ')
+        camera = camera.scaled(width, height)
+    return camera, note
+
+
+def perspective_camera(spec: CameraSpec, width: Optional[int] = None,
+                       height: Optional[int] = None) -> PinholeCamera:
+    """The paper's "Pers." camera: the mean of the perspective focals (W/2) / tan(hfov/2),
+    (H/2) / tan(vfov/2) (and the diagonal's) of the given FOVs, centred, no distortion."""
+    focals = [spec.half_extents()[n] / math.tan(math.radians(v) / 2) for n, v in spec.given().items()
+              if v < 180]
+    if not focals:
+        raise SpecError(next(iter(spec.given())), next(iter(spec.given().values())),
+                        'less than 180 degrees', 'no perspective focal length exists')
+    f = float(np.mean(focals))
+    camera = PinholeCamera(f, f, spec.width / 2.0, spec.height / 2.0, spec.width, spec.height)
+    width = spec.width if width is None else width
+    height = spec.height if height is None else height
+    if (width, height) != (spec.width, spec.height):
+        s = width / spec.width
+        camera = PinholeCamera(f * s, f * s, width / 2.0, height / 2.0, width, height)
+    return camera
+
+
+# ---------------------------------------------------------------------------------------------
+# FC_eq.d.
+
+
+def _fc_pixels(f, s, cx, cy, points, projection: FisheyeProjection):
+    """The paper's model for camera-frame points (..., 3), continued smoothly past 90 degrees
+    off-axis (r_d = f rho(atan2(a sin theta, cos theta)) / a, a = sqrt(s)), so the optimiser
+    never meets NaN. Equal to ZeroShotCamera.project wherever that is defined.
+    Returns (pixels (..., 2), theta (...))."""
+    x, y, z = points[..., 0], points[..., 1], points[..., 2]
+    rxy = np.hypot(x, y)
+    theta = np.arctan2(rxy, z)
+    a = math.sqrt(max(s, 1e-24))
+    rd = f * projection.rho(np.arctan2(a * np.sin(theta), np.cos(theta))) / a
+    with np.errstate(invalid='ignore', divide='ignore'):
+        scale = np.where(rxy > 0, rd / np.where(rxy > 0, rxy, 1.0), f / z)
+    return np.stack([cx + scale * x, cy + scale * y], axis=-1), theta
+
+
+DOMAIN_MARGIN_RAD = 1e-3
+DOMAIN_WEIGHT = 1e3
+"""The paper's model cannot image rays 90 degrees or more off-axis (ZeroShotCamera.project is
+NaN there). FC keeps every board corner inside: each corner adds the residual
+DOMAIN_WEIGHT * f * max(0, theta - (pi/2 - DOMAIN_MARGIN_RAD)), zero for any valid pose."""
+
+
+class _FcProblem:
+    """FC's least-squares problem: x = [f, s, (cx, cy), rvec_0, tvec_0, rvec_1, ...]."""
+
+    def __init__(self, obj, img, free_pp, cx0, cy0, projection):
+        self.obj, self.img = obj, img
+        self.n, self.m = img.shape[0], img.shape[1]
+        self.free_pp = free_pp
+        self.k = 4 if free_pp else 2
+        self.cx0, self.cy0 = cx0, cy0
+        self.projection = projection
+
+    def unpack(self, x):
+        f, s = x[0], x[1]
+        cx, cy = (x[2], x[3]) if self.free_pp else (self.cx0, self.cy0)
+        poses = x[self.k:].reshape(self.n, 6)
+        return f, s, cx, cy, poses
+
+    def residuals(self, x):
+        """Per image: 2 M pixel residuals, then M domain residuals (see DOMAIN_WEIGHT)."""
+        f, s, cx, cy, poses = self.unpack(x)
+        pts = transform(poses[:, :3], poses[:, 3:], self.obj)
+        pixels, theta = _fc_pixels(f, s, cx, cy, pts, self.projection)
+        domain = DOMAIN_WEIGHT * f * np.maximum(0.0, theta - (math.pi / 2 - DOMAIN_MARGIN_RAD))
+        return np.concatenate([(pixels - self.img).reshape(self.n, -1), domain], axis=1).ravel()
+
+    def pixel_residuals(self, x) -> np.ndarray:
+        """(n, M, 2)"""
+        return self.residuals(x).reshape(self.n, 3 * self.m)[:, :2 * self.m].reshape(self.n, self.m, 2)
+
+    def jacobian(self, x):
+        """Central differences; dense for a few images, else sparse (CSR) with the block
+        structure: intrinsic columns dense, each image's 6 extrinsic columns on its rows only."""
+        n, m, k = self.n, self.m, self.k
+        per = 3 * m  # rows per image
+        rows = n * per
+        dense = np.empty((rows, k))
+        for j in range(k):
+            h = 1e-6 * max(1.0, abs(x[j]))
+            xp, xm = x.copy(), x.copy()
+            xp[j] += h
+            if j == 1 and x[1] - h < 0:  # s >= 0: forward difference at the bound
+                dense[:, j] = (self.residuals(xp) - self.residuals(x)) / h
+                continue
+            xm[j] -= h
+            dense[:, j] = (self.residuals(xp) - self.residuals(xm)) / (2 * h)
+        views = np.arange(n)
+        blocks = np.empty((n, per, 6))
+        for j in range(6):
+            cols = k + 6 * views + j
+            h = 1e-6 * np.maximum(1.0, np.abs(x[cols]))
+            xp, xm = x.copy(), x.copy()
+            xp[cols] += h
+            xm[cols] -= h
+            blocks[:, :, j] = (self.residuals(xp) - self.residuals(xm)).reshape(n, per) / (2 * h[:, None])
+        if n <= DENSE_UP_TO_VIEWS:
+            J = np.zeros((rows, x.size))
+            J[:, :k] = dense
+            Jv = J.reshape(n, per, x.size)
+            for j in range(6):
+                Jv[views, :, k + 6 * views + j] = blocks[:, :, j]
+            return J
+        # CSR: row r of image i holds k intrinsic entries, then its 6 extrinsic entries.
+        data = np.concatenate([dense.reshape(n, per, k), blocks], axis=2).ravel()
+        ext_cols = k + 6 * views[:, None, None] + np.arange(6)[None, None, :]
+        cols = np.concatenate([np.broadcast_to(np.arange(k), (n, per, k)),
+                               np.broadcast_to(ext_cols, (n, per, 6))], axis=2).ravel()
+        indptr = np.arange(rows + 1) * (k + 6)
+        return sparse.csr_matrix((data, cols, indptr), shape=(rows, x.size))
+
+
+def _check_views(corners: CornerSet, views) -> tuple:
+    if views is None:
+        views = range(len(corners))
+    views = tuple(int(v) for v in views)
+    if not views:
+        raise CalibrationError('no images to calibrate on: allowed: at least 1')
+    bad = [v for v in views if not 0 <= v < len(corners)]
+    if bad:
+        raise CalibrationError(f'image index {bad[0]} is invalid: allowed: 0 to {len(corners) - 1}')
+    if corners.board.count < MIN_CORNERS_PER_IMAGE:
+        raise CalibrationError(f'{corners.board.count} corners per image are too few: allowed: at '
+                               f'least {MIN_CORNERS_PER_IMAGE}')
+    return views
+
+
+def calibrate_fc(corners: CornerSet, views: Optional[Sequence[int]] = None,
+                 initial_camera: Optional[ZeroShotCamera] = None, init: str = 'default',
+                 principal_point: Optional[bool] = None, projection: str = 'equidistant',
+                 max_nfev: int = 400, method: str = 'fc') -> CalibrationResult:
+    """FC_eq.d. on ``views`` (all images by default) from ``initial_camera`` (the default camera
+    when None). ``principal_point``: True frees cx, cy, False fixes them at the start camera's,
+    None frees them from MIN_VIEWS_FREE_PRINCIPAL_POINT images on."""
+    views = _check_views(corners, views)
+    W, H = corners.width, corners.height
+    proj = PROJECTIONS[projection]
+    start = initial_camera if initial_camera is not None else default_camera(W, H, projection)
+    free_pp = (len(views) >= MIN_VIEWS_FREE_PRINCIPAL_POINT) if principal_point is None \
+        else bool(principal_point)
+    result = CalibrationResult(method, views, init=init, initial_camera=start,
+                               fixed_principal_point=not free_pp)
+    obj = corners.object_points()
+    img = corners.corners[list(views)]
+    poses = board_poses(start, obj, img)
+    if not np.all(poses.found):
+        lost = [corners.names[views[i]] for i in np.flatnonzero(~poses.found)]
+        result.ok = False
+        result.error = (f'no start pose through the initial camera for {len(lost)} image(s): '
+                        f'{", ".join(lost[:6])}')
+        return result
+    problem = _FcProblem(obj, img, free_pp, start.cx, start.cy, proj)
+    s0 = max((start.omega * start.f) ** 2, 1e-8)
+    x0 = np.concatenate([[start.f, s0], [start.cx, start.cy] if free_pp else [],
+                         np.hstack([poses.rvecs, poses.tvecs]).ravel()])
+    lb = np.full(x0.size, -np.inf)
+    lb[0], lb[1] = 1e-6 * max(W, H), 0.0
+    try:
+        with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
+            sol = least_squares(problem.residuals, x0, jac=problem.jacobian, bounds=(lb, np.inf),
+                                method='trf', x_scale='jac', ftol=1e-12, xtol=1e-12, gtol=1e-12,
+                                max_nfev=max_nfev)
+    except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
+        result.ok = False
+        result.error = f'least squares failed: {exc}'
+        return result
+    f, s, cx, cy, poses6 = problem.unpack(sol.x)
+    if not np.all(np.isfinite(sol.fun)) or not (f > 0 and np.isfinite(s)):
+        result.ok = False
+        result.error = 'least squares diverged (non-finite parameters or residuals)'
+        return result
+    a = math.sqrt(max(s, 0.0))
+    result.camera = ZeroShotCamera(f, cx, cy, W, H, a / f, proj)
+    res = problem.pixel_residuals(sol.x)
+    result.rms_px = float(np.sqrt(np.mean(np.sum(res * res, axis=-1))))
+    result.rvecs, result.tvecs = poses6[:, :3].copy(), poses6[:, 3:].copy()
+    result.nfev = int(sol.nfev)
+    if sol.status == 0:
+        result.notes.append(f'stopped at max_nfev = {max_nfev}')
+    with np.errstate(invalid='ignore'):
+        beyond = np.count_nonzero(~np.all(np.isfinite(result.camera.project(
+            transform(result.rvecs, result.tvecs, obj))), axis=-1))
+    if beyond:
+        result.notes.append(f'{beyond} board corners lie 90 degrees or more off-axis in the '
+                            'fitted model')
+    return result
+
+
+# ---------------------------------------------------------------------------------------------
+# OpenCV baselines
+
+
+def opencv_fisheye_flag(name: str) -> int:
+    """A fisheye calibration flag on OpenCV 4.x (cv2.fisheye.CALIB_*) and 5.x (cv2.CALIB_*).
+    The 4.x fisheye namespace is looked up first: its values differ from 4.x's cv2.CALIB_*."""
+    value = getattr(getattr(cv2, 'fisheye', None), name, None)
+    if value is None:
+        value = getattr(cv2, name)
+    return int(value)
+
+
+def _opencv_lists(corners: CornerSet, views, dtype):
+    obj = corners.object_points().astype(dtype).reshape(1, -1, 3)
+    img = [corners.corners[v].astype(dtype).reshape(1, -1, 2) for v in views]
+    return [obj] * len(views), img
+
+
+def _own_rms(camera, obj, img, rvecs, tvecs):
+    res = camera.project(transform(rvecs, tvecs, obj)) - img
+    return float(np.sqrt(np.mean(np.sum(res * res, axis=-1))))
+
+
+def calibrate_zhang(corners: CornerSet, views: Optional[Sequence[int]] = None,
+                    flags: int = 0) -> CalibrationResult:
+    """``cv2.calibrateCamera`` (plumb_bob) on ``views``; failures returned with ok=False."""
+    views = _check_views(corners, views)
+    result = CalibrationResult('zhang', views, init='opencv')
+    obj, img = _opencv_lists(corners, views, np.float32)
+    try:
+        rms, K, D, rvecs, tvecs = cv2.calibrateCamera(obj, img, (corners.width, corners.height),
+                                                      None, None, flags=flags)
+    except cv2.error as exc:
+        result.ok, result.error = False, f'cv2.calibrateCamera raised: {_cv_message(exc)}'
+        return result
+    D = np.asarray(D, float).ravel()
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D)) and K[0, 0] > 0 and K[1, 1] > 0):
+        result.ok, result.error = False, 'cv2.calibrateCamera returned non-finite or non-positive K / D'
+        return result
+    result.camera = PlumbBobCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], corners.width, corners.height,
+                                   D[:5] if D.size >= 5 else D)
+    result.opencv_rms = float(rms)
+    result.rvecs = np.array([np.ravel(r) for r in rvecs], float)
+    result.tvecs = np.array([np.ravel(t) for t in tvecs], float)
+    result.rms_px = _own_rms(result.camera, corners.object_points(), corners.corners[list(views)],
+                             result.rvecs, result.tvecs)
+    return result
+
+
+def _cv_message(exc) -> str:
+    text = ' '.join(str(exc).split())
+    if 'error: (' in text:
+        text = text[text.index('error: (') + len('error: '):]
+    return text
+
+
+def calibrate_opencv_fisheye(corners: CornerSet, views: Optional[Sequence[int]] = None,
+                             flags: Optional[int] = None) -> CalibrationResult:
+    """``cv2.fisheye.calibrate`` (KB4) on ``views``; failures returned with ok=False."""
+    views = _check_views(corners, views)
+    if flags is None:
+        flags = opencv_fisheye_flag('CALIB_RECOMPUTE_EXTRINSIC') | opencv_fisheye_flag('CALIB_FIX_SKEW')
+    W, H = corners.width, corners.height
+    result = CalibrationResult('fisheye', views, init='opencv')
+    obj, img = _opencv_lists(corners, views, np.float64)
+    f0 = max(W, H) / math.pi
+    attempts = [('opencv', flags, np.zeros((3, 3))),
+                ('opencv defaults made explicit (f = max(W, H) / pi, centred) after the implicit '
+                 'start raised', flags | opencv_fisheye_flag('CALIB_USE_INTRINSIC_GUESS'),
+                 np.array([[f0, 0, (W - 1) / 2.0], [0, f0, (H - 1) / 2.0], [0, 0, 1]]))]
+    errors = []
+    for init, fl, K0 in attempts:
+        try:
+            rms, K, D, rvecs, tvecs = cv2.fisheye.calibrate(obj, img, (W, H), K0.copy(),
+                                                            np.zeros((4, 1)), flags=fl)
+        except cv2.error as exc:
+            errors.append(_cv_message(exc))
+            continue
+        D = np.asarray(D, float).ravel()
+        if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D)) and K[0, 0] > 0 and K[1, 1] > 0):
+            errors.append('non-finite or non-positive K / D')
+            continue
+        result.init = init
+        result.camera = KannalaBrandtCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], W, H, D)
+        result.opencv_rms = float(rms)
+        result.rvecs = np.array([np.ravel(r) for r in rvecs], float)
+        result.tvecs = np.array([np.ravel(t) for t in tvecs], float)
+        result.rms_px = _own_rms(result.camera, corners.object_points(), corners.corners[list(views)],
+                                 result.rvecs, result.tvecs)
+        if errors:
+            result.notes.append(f'implicit start raised: {errors[0]}')
+        return result
+    result.ok = False
+    result.error = 'cv2.fisheye.calibrate raised: ' + ' / then: '.join(errors)
+    return result
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def calibrate(corners: CornerSet, method: str = 'fc', views: Optional[Sequence[int]] = None,
+              spec: Optional[CameraSpec] = None, principal_point: Optional[bool] = None) -> CalibrationResult:
+    """Run ``method`` (one of METHODS) on ``views`` of ``corners``. ``fc+zs`` needs ``spec``.
+
+    Input errors raise CalibrationError / SpecError; numerical failures of a method come back as
+    a result with ``ok=False``.
+    """
+    if method == 'fc':
+        return calibrate_fc(corners, views, principal_point=principal_point)
+    if method == 'fc+zs':
+        if spec is None:
+            raise CalibrationError('fc+zs needs a spec: give hfov / vfov / dfov')
+        start, note = zero_shot_camera(spec, corners.width, corners.height)
+        result = calibrate_fc(corners, views, start, 'zero-shot', principal_point, method='fc+zs')
+        if note:
+            result.notes.append(note)
+        return result
+    if method == 'zhang':
+        return calibrate_zhang(corners, views)
+    if method == 'fisheye':
+        return calibrate_opencv_fisheye(corners, views)
+    raise CalibrationError(f'method = {method!r} is invalid: allowed: {", ".join(METHODS)}')
+
+
+class _SizeOnlySpec:
+    """The spec of a calibration made without a spec sheet: size only, no FOV."""
+
+    def __init__(self, width, height):
+        self.width, self.height = width, height
+
+    def given(self):
+        return {}
+
+
+@dataclass
+class CalibratedSolution:
+    """A calibrated ZeroShotCamera with ZeroShotSolution's interface, so that
+    ``CameraCalibration.from_solution`` and ``solution_summary`` write the same YAML / JSON for
+    ``calibrate`` as for ``solve``."""
+
+    camera: ZeroShotCamera
+    spec: object
+    root_found: bool = True
+    dfov_residuals: dict = field(default_factory=dict)
+
+    @property
+    def omega(self):
+        return self.camera.omega
+
+    @property
+    def f(self):
+        return self.camera.f
+
+    @property
+    def K(self):
+        return self.camera.K
+
+    @property
+    def projection(self):
+        return self.camera.projection
+
+    def predicted_fovs(self):
+        return self.camera.fields_of_view()
+
+
+class _DomainCappedCamera(ZeroShotCamera):
+    """A calibrated ZeroShotCamera whose ``max_field_angle`` stays inside the model's domain:
+    when image corners are 90 degrees or more off-axis (NaN in the model), the largest angle is
+    just below 90 degrees, so ``fit_kannala_brandt`` fits the whole range the model defines
+    (and the fitted polynomial extrapolates beyond it)."""
+
+    def max_field_angle(self) -> float:
+        angle = super().max_field_angle()
+        return angle if math.isfinite(angle) else math.pi / 2 * (1 - 1e-9)
+
+    def beyond_domain(self) -> bool:
+        return not math.isfinite(super().max_field_angle())
+
+
+def as_solution(result: CalibrationResult, spec: Optional[CameraSpec] = None) -> CalibratedSolution:
+    """The FC result as a solution object (see CalibratedSolution)."""
+    if not result.ok or not isinstance(result.camera, ZeroShotCamera):
+        raise CalibrationError(f'{result.label} did not produce a ZeroShotCamera: {result.error}')
+    cam = result.camera
+    capped = _DomainCappedCamera(cam.f, cam.cx, cam.cy, cam.width, cam.height, cam.omega, cam.projection)
+    return CalibratedSolution(capped, spec if spec is not None else _SizeOnlySpec(cam.width, cam.height))
