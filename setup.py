@@ -61,6 +61,7 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
+    package_data={package_name: ['data/*.csv']},  # camera presets (zeroshot-calib presets)
     data_files=[
         ('share/ament_index/resource_index/packages',
             ['resource/' + package_name]),

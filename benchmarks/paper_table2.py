@@ -3,7 +3,6 @@
 
     .venv/bin/python benchmarks/paper_table2.py
 """
-import math
 import sys
 from pathlib import Path
 

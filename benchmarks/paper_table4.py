@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from zeroshot_calib_ros.core import CameraSpec, ZeroShotCamera  # noqa: E402
 from zeroshot_calib_ros.core.calibration import (calibrate_fc, perspective_camera,  # noqa: E402
                                                  zero_shot_camera)
-from zeroshot_calib_ros.core.calibration_file import CameraCalibration  # noqa: E402
+from zeroshot_calib_ros.core.calibration_file import CameraCalibration, json_safe  # noqa: E402
 from zeroshot_calib_ros.core.camera_models import camera_from_calibration  # noqa: E402
 from zeroshot_calib_ros.core.corners import Board, detect_corners  # noqa: E402
 from zeroshot_calib_ros.core.evaluation import (evaluate, evaluation_to_dict,  # noqa: E402
@@ -71,18 +71,6 @@ def ablation(corners, spec, log):
                      'eps_gen_median': float(np.nanmedian(gens)), 'failed': int(np.sum(np.isnan(gens))),
                      'gen': gens, 'f': fs})
     return rows
-
-
-def _json_safe(value):
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    if hasattr(value, 'tolist'):
-        return _json_safe(value.tolist())
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
 
 
 def main(argv=None):
@@ -128,7 +116,7 @@ def main(argv=None):
     rows = [] if args.no_ablation else ablation(corners, spec, log)
 
     if args.json:
-        print(json.dumps(_json_safe({'evaluation': evaluation_to_dict(ev), 'criteria': criteria,
+        print(json.dumps(json_safe({'evaluation': evaluation_to_dict(ev), 'criteria': criteria,
                                      'ablation': rows})))
         return 0
     print(format_tables(ev))

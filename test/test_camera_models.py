@@ -110,3 +110,26 @@ def test_scaled_camera_keeps_the_field_of_view():
     half = solution.camera.scaled(960, 540)
     for k, v in half.fields_of_view().items():
         assert v == pytest.approx(solution.predicted_fovs()[k], abs=1e-9)
+
+
+@pytest.mark.parametrize('intrinsics, D', [
+    # Real lens profiles (gyroflow collection) where Newton from theta = theta_d diverges.
+    ((669.7422, 653.6861, 905.6244, 380.9765, 1920, 1080), [0.303845, 0.0238101, 0.116959, -0.0382335]),
+    ((4799.750, 4797.703, 2988.691, 1966.696, 6048, 4032), [0.205803, -0.602810, 3.500759, -4.888172]),
+])
+def test_kannala_brandt_inverse_converges_on_strong_polynomials(intrinsics, D):
+    cam = KannalaBrandtCamera(*intrinsics, D)
+    pixels = image_grid(cam.width, cam.height, 33, 19)
+    rays = cam.unproject(pixels)
+    assert np.all(np.isfinite(rays))
+    assert np.abs(cam.project(rays) - pixels).max() < 1e-6
+
+
+def test_kannala_brandt_beyond_the_turning_point_is_nan():
+    cam = KannalaBrandtCamera(500.0, 500.0, 400, 300, 800, 600, [0.0, -0.2, 0.0, 0.0])
+    # theta_d = theta - 0.2 theta^5 turns back at theta^4 = 1: theta_max = 1 rad
+    assert cam.theta_max == pytest.approx(1.0, rel=1e-12)
+    beyond = cam.theta_d(1.0) * 500 * 1.001
+    assert np.all(np.isnan(cam.unproject(np.array([[400 + beyond, 300.0]]))))
+    inside = cam.project(np.array([[np.sin(0.9), 0.0, np.cos(0.9)]]))
+    assert cam.unproject(inside)[0] == pytest.approx([np.sin(0.9), 0.0, np.cos(0.9)], abs=1e-12)

@@ -1,5 +1,4 @@
 """The installed ROS node, in its own process, seen from another process (this one)."""
-import math
 
 import cv2
 import numpy as np

@@ -44,7 +44,7 @@ def test_zero_shot_matches_table2(row):
     else:
         assert round(solution.omega, 6) == pytest.approx(row['omega'], abs=1e-12)
     if row['camera'] in F_INCONSISTENT_WITH_EQ24:
-        W, H = row['width'], row['height']
+        W = row['width']
         w = row['omega']
         f_eq24 = math.tan(w * W / 2) / (w * _tan_half(row['hfov']))
         assert abs(row['f_star'] - f_eq24) > 0.3, 'the printed f* would then be consistent'

@@ -2,6 +2,8 @@
 
     zeroshot-calib solve --width 1920 --height 1080 --hfov 118 --vfov 69 [--json] [--yaml FILE]
     zeroshot-calib solve --batch cameras.csv [--yaml-dir DIR]
+    zeroshot-calib solve --preset gopro_hero9_wide [--hfov 120] [--json]
+    zeroshot-calib presets [--json]
     zeroshot-calib rectify IN.png -o OUT.png --hfov 118 --vfov 69
     zeroshot-calib calibrate 'images/*.png' [--board 8x6 --square 0.108] [--hfov H --vfov V] [--single IMG]
     zeroshot-calib evaluate 'images/*.png' --hfov H --vfov V [--json] [--save-corners FILE]
@@ -14,7 +16,6 @@ import argparse
 import csv
 import glob
 import json
-import math
 import os
 import sys
 
@@ -22,10 +23,11 @@ import cv2
 
 from .core.calibration import as_solution, calibrate
 from .core.calibration_file import (DISTORTION_MODELS, CalibrationFileError, CameraCalibration,
-                                    solution_summary, summary_text)
+                                    json_safe, solution_summary, summary_text)
 from .core.camera_models import camera_from_calibration
 from .core.corners import CornerSet, detect_corners, parse_board
 from .core.evaluation import evaluate, evaluation_to_dict, format_tables, reprojection_error
+from .core.presets import get_preset, load_presets
 from .core.rectify import INTERPOLATIONS, Rectifier
 from .core.solver import PROJECTION_CHOICES, NoConvergence, solve_zero_shot
 from .core.spec import CameraSpec, SpecError
@@ -43,7 +45,8 @@ def _add_spec_arguments(parser, size_required=True):
     parser.add_argument('--dfov', type=float, help='diagonal field of view (deg)')
     parser.add_argument('--model', default='auto', choices=PROJECTION_CHOICES,
                         help='fisheye projection; auto picks by dfov when all three FOVs are given, '
-                             'else equidistant (default: auto)')
+                             'else equidistant, and switches to wide (angle-space model for FOVs of '
+                             '180 deg and more) only when needed (default: auto)')
 
 
 def _add_output_arguments(parser):
@@ -62,12 +65,50 @@ def _solve(spec, args, camera_name='camera'):
     return solution, calibration, fit
 
 
+SOLVE_SPEC_FIELDS = ('width', 'height', 'hfov', 'vfov', 'dfov', 'circle_diameter', 'circle_fov')
+
+
+def _solve_spec(args):
+    """The spec of `solve`: the --preset's fields, each overridden by a flag given explicitly."""
+    fields = {}
+    if args.preset:
+        preset = get_preset(args.preset)
+        fields = {k: getattr(preset, k) for k in SOLVE_SPEC_FIELDS}
+    fields.update({k: getattr(args, k) for k in SOLVE_SPEC_FIELDS if getattr(args, k, None) is not None})
+    if fields.get('width') is None or fields.get('height') is None:
+        raise CliError('--width and --height are required (or --preset NAME, or --batch FILE)')
+    return CameraSpec(**fields)
+
+
+def _cmd_presets(args):
+    presets = load_presets()
+    records = [{'name': p.name, 'width': p.spec.width, 'height': p.spec.height, 'hfov': p.spec.hfov,
+                'vfov': p.spec.vfov, 'dfov': p.spec.dfov, 'circle_diameter': p.spec.circle_diameter,
+                'circle_fov': p.spec.circle_fov, 'description': p.description, 'source': p.source}
+               for p in presets.values()]
+    if args.json:
+        print(json.dumps(records))
+        return 0
+
+    def deg(value):
+        return '-' if value is None else f'{value:g}'
+    rows = [('name', 'resolution', 'hfov', 'vfov', 'dfov', 'circle', 'source')]
+    for r in records:
+        circle = '-' if r['circle_diameter'] is None else f"{r['circle_diameter']:g}px/{r['circle_fov']:g}"
+        rows.append((r['name'], f"{r['width']}x{r['height']}", deg(r['hfov']), deg(r['vfov']),
+                     deg(r['dfov']), circle, r['source']))
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]) - 1)]
+    for row in rows:
+        print('  '.join(cell.ljust(w) for cell, w in zip(row, widths)) + '  ' + row[-1])
+    return 0
+
+
 def _cmd_solve(args):
     if args.batch:
+        if args.preset:
+            raise CliError('--preset and --batch cannot be combined')
         return _solve_batch(args)
-    if args.width is None or args.height is None:
-        raise CliError('--width and --height are required (or --batch FILE)')
-    spec = CameraSpec(args.width, args.height, args.hfov, args.vfov, args.dfov)
+    spec = _solve_spec(args)
     solution, calibration, fit = _solve(spec, args, args.camera_name)
     summary = solution_summary(solution, calibration, fit)
     if args.yaml:
@@ -203,19 +244,6 @@ def _fov_spec(args, corners):
     return CameraSpec(corners.width, corners.height, args.hfov, args.vfov, args.dfov)
 
 
-def _json_safe(value):
-    """NaN / inf -> null, numpy -> Python, so --json prints strict JSON."""
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    if hasattr(value, 'tolist'):
-        return _json_safe(value.tolist())
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def _cmd_calibrate(args):
     corners = _corner_set(args, args.single)
     views = None
@@ -249,7 +277,7 @@ def _cmd_calibrate(args):
     if args.yaml:
         calibration.save(args.yaml)
     if args.json:
-        print(json.dumps(_json_safe(summary)))
+        print(json.dumps(json_safe(summary)))
         return 0
     lines = summary_text(summary).splitlines()
     if spec is None:
@@ -308,7 +336,7 @@ def _cmd_evaluate(args):
     result = evaluate(corners, spec, shots=args.shots, runs=runs, name=name, spec_source=spec_source,
                       reference=reference, reference_source=reference_source, progress=progress)
     if args.json:
-        print(json.dumps(_json_safe(evaluation_to_dict(result))))
+        print(json.dumps(json_safe(evaluation_to_dict(result))))
     else:
         print(format_tables(result))
     return 0
@@ -333,7 +361,18 @@ def build_parser() -> argparse.ArgumentParser:
                        help='cameras, one per row: name,width,height,hfov,vfov,dfov (empty cells '
                             'allowed); prints one JSON object per line')
     solve.add_argument('--yaml-dir', metavar='DIR', help='with --batch: write DIR/<name>.yaml per camera')
+    solve.add_argument('--preset', metavar='NAME',
+                       help='start from a published spec (`zeroshot-calib presets` lists them); '
+                            'explicit --width/--height/--hfov/... override its fields')
+    solve.add_argument('--circle-diameter', type=float, metavar='PX',
+                       help='circular fisheye: image-circle diameter (px), with --circle-fov')
+    solve.add_argument('--circle-fov', type=float, metavar='DEG',
+                       help='circular fisheye: field of view across the image circle (deg)')
     solve.set_defaults(run=_cmd_solve)
+
+    presets = sub.add_parser('presets', help='list the camera presets (published spec sheets)')
+    presets.add_argument('--json', action='store_true', help='print one JSON array')
+    presets.set_defaults(run=_cmd_presets)
 
     rectify = sub.add_parser('rectify', help='rectify an image file')
     rectify.add_argument('input', help='input image')

@@ -6,6 +6,7 @@ any ROS camera driver.
 """
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field
 from typing import Optional
@@ -197,12 +198,29 @@ def resolve_camera_info_url(url: str, camera_name: str = 'camera') -> Optional[s
     raise CalibrationFileError(f'camera_info_url = {url!r} is invalid: allowed: file://, package:// or a path')
 
 
+def json_safe(value):
+    """``value`` with numpy types made Python and NaN / inf made None, for strict JSON."""
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if hasattr(value, 'tolist'):
+        return json_safe(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
 def solution_summary(solution: ZeroShotSolution, calibration: CameraCalibration, fit) -> dict:
-    """The JSON record of a solve: the CLI's ``--json`` and the node's start-up log."""
+    """The record of a solve (the CLI's ``--json``, the node's start-up log). Strict JSON: a
+    predicted FOV whose edge pixels see no ray (outside a fisheye's image circle) is None."""
     fovs = solution.predicted_fovs()
-    return {
+    spec = dict(solution.spec.given())
+    if getattr(solution.spec, 'circle_diameter', None) is not None:
+        spec.update(circle_diameter=solution.spec.circle_diameter, circle_fov=solution.spec.circle_fov)
+    return json_safe({
         'width': solution.spec.width, 'height': solution.spec.height,
-        'spec': solution.spec.given(),
+        'spec': spec,
         'model': solution.projection.name, 'omega': solution.omega, 'f': solution.f,
         'cx': solution.camera.cx, 'cy': solution.camera.cy,
         'K': calibration.K.tolist(),
@@ -212,23 +230,26 @@ def solution_summary(solution: ZeroShotSolution, calibration: CameraCalibration,
         'hfov': fovs['hfov'], 'vfov': fovs['vfov'], 'dfov': fovs['dfov'],
         'root_found': solution.root_found,
         'dfov_residuals': solution.dfov_residuals,
-    }
+    })
 
 
 def summary_text(summary: dict) -> str:
     """A readable block of a ``solution_summary`` (CLI output, node start-up log)."""
-    spec = ', '.join(f'{k} {v:g} deg' for k, v in summary['spec'].items())
+    spec = ', '.join(f'{k} {v:g} px' if k == 'circle_diameter' else f'{k} {v:g} deg'
+                     for k, v in summary['spec'].items())
     K = summary['K']
     lines = [
         f"camera    {summary['width']} x {summary['height']} px, {spec}",
-        f"model     {summary['model']}" + ('' if summary['root_found'] else
-                                          '  (no barrel-distortion root: w* = 0, mean perspective focal)'),
+        f"model     {summary['model']}" + (
+            '  (no barrel-distortion root: w* = 0, mean perspective focal)'
+            if not summary['root_found'] and summary['omega'] == 0 and len(summary['spec']) > 1 else ''),
         f"omega     {summary['omega']:.9g} (1/px)",
         f"f         {summary['f']:.4f} px",
         f"K         [[{K[0][0]:.4f}, 0, {K[0][2]:.2f}], [0, {K[1][1]:.4f}, {K[1][2]:.2f}], [0, 0, 1]]",
         f"D         {summary['distortion_model']} [{', '.join(f'{d:.9g}' for d in summary['D'])}]",
         f"fit error {summary['fit_error_px']:.2g} px (max over the image)",
-        f"FOV       h {summary['hfov']:.3f}, v {summary['vfov']:.3f}, d {summary['dfov']:.3f} deg (predicted)",
+        'FOV       ' + ', '.join(f"{k[0]} {'-' if summary[k] is None else format(summary[k], '.3f')}"
+                                 for k in ('hfov', 'vfov', 'dfov')) + ' deg (predicted; - : no ray)',
     ]
     for name, res in summary['dfov_residuals'].items():
         lines.append(f"  dfov residual {name:13s} {res:+.3f} deg" + ('  <- chosen' if name == summary['model'] else ''))

@@ -210,17 +210,34 @@ class KannalaBrandtCamera(CameraModel):
         k1, k2, k3, k4 = self.D
         return 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
 
-    def theta_from_theta_d(self, theta_d, iterations: int = 30):
-        """Newton on the odd polynomial, from theta = theta_d; NaN where it did not converge
-        or where the polynomial is not monotonic (no unique ray)."""
+    @property
+    def theta_max(self) -> float:
+        """Largest angle up to which theta_d(theta) rises (the polynomial may turn back after
+        it; no ray beyond is recoverable), at most pi."""
+        k1, k2, k3, k4 = self.D
+        # d theta_d / d theta = 1 + 3 k1 u + 5 k2 u^2 + 7 k3 u^3 + 9 k4 u^4 with u = theta^2
+        roots = np.roots([9 * k4, 7 * k3, 5 * k2, 3 * k1, 1.0])
+        u = [r.real for r in roots if abs(r.imag) <= 1e-12 * max(1.0, abs(r)) and r.real > 0]
+        return float(min(np.sqrt(min(u)), np.pi)) if u else float(np.pi)
+
+    def theta_from_theta_d(self, theta_d, iterations: int = 60):
+        """Inverse of theta_d on [0, theta_max]: Newton steps kept inside a shrinking bracket
+        (bisection where Newton would leave it), so it converges for every lens; NaN beyond
+        theta_d(theta_max), where no unique ray exists."""
         theta_d = np.asarray(theta_d, dtype=float)
-        theta = np.array(theta_d, dtype=float)
+        hi_theta = self.theta_max
+        lo = np.zeros_like(theta_d)
+        hi = np.full_like(theta_d, hi_theta)
+        theta = np.clip(theta_d, 0.0, hi_theta)
         for _ in range(iterations):
             with np.errstate(invalid='ignore', over='ignore', divide='ignore'):
-                theta = theta - (self.theta_d(theta) - theta_d) / self._dtheta_d(theta)
+                err = self.theta_d(theta) - theta_d
+                lo = np.where(err < 0, theta, lo)
+                hi = np.where(err > 0, theta, hi)
+                step = theta - err / self._dtheta_d(theta)
+                theta = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
         with np.errstate(invalid='ignore', over='ignore'):
-            ok = (np.abs(self.theta_d(theta) - theta_d) < 1e-12 * np.maximum(1.0, theta_d)) \
-                & (self._dtheta_d(theta) > 0) & (theta >= 0) & (theta < np.pi)
+            ok = (theta_d >= 0) & (np.abs(self.theta_d(theta) - theta_d) <= 1e-12 * np.maximum(1.0, theta_d))
         return np.where(ok, theta, np.nan)
 
     def project(self, rays):

@@ -1,6 +1,8 @@
 """Rectification to a pinhole camera, with maps computed from the exact camera model."""
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import Optional, Tuple
 
 import cv2
@@ -13,12 +15,34 @@ INTERPOLATIONS = {0: cv2.INTER_NEAREST, 1: cv2.INTER_LINEAR, 2: cv2.INTER_CUBIC,
 
 _MAP_ROWS_PER_CHUNK = 128  # bounds the float64 temporaries to ~ 128 x width x 3 x 8 bytes
 
+MAX_EDGE_ANGLE_DEG = 80.0
+"""For lenses whose image edges reach 90 degrees off-axis or more (180-degree and wider lenses,
+core/wide_fov.py), which no pinhole can show: in ``new_camera_matrix`` every edge midpoint then
+counts as at most this far off-axis (in its own direction), so balance = 1 shows up to +-80
+degrees there and balance = 0 is set by the edges that are nearer the axis."""
+
+
+def _edge_points_within_reach(camera: CameraModel, edges: np.ndarray) -> np.ndarray:
+    """Normalised pinhole points of the edge midpoints with each ray's off-axis angle clamped
+    to MAX_EDGE_ANGLE_DEG (edges without a ray: in the direction of the pixel)."""
+    rays = camera.unproject(edges)
+    offset = np.stack([(edges[:, 0] - camera.cx) / camera.fx, (edges[:, 1] - camera.cy) / camera.fy], axis=-1)
+    direction = np.where(np.isfinite(rays[:, :2]).all(axis=1, keepdims=True), rays[:, :2], offset)
+    norm = np.linalg.norm(direction, axis=1, keepdims=True)
+    direction = direction / np.where(norm > 0, norm, 1.0)
+    theta = np.arctan2(np.linalg.norm(rays[:, :2], axis=1), rays[:, 2])
+    theta = np.where(np.isfinite(theta), np.minimum(theta, np.radians(MAX_EDGE_ANGLE_DEG)),
+                     np.radians(MAX_EDGE_ANGLE_DEG))
+    return direction * np.tan(theta)[:, None]
+
 
 def new_camera_matrix(camera: CameraModel, balance: float = 0.0, fov_scale: float = 1.0,
                       new_size: Optional[Tuple[int, int]] = None) -> np.ndarray:
     """The rectified pinhole camera, with the meaning cv2.fisheye.estimateNewCameraMatrixForUndistortRectify
     gives ``balance`` (0: focal of the tightest edge, no black border; 1: the whole image edge-to-edge
     is kept) and ``fov_scale`` (divides the focal length), computed with ``camera``'s exact model.
+    When an edge is 90 degrees or more off-axis (no pinhole shows it), every edge counts as at
+    most MAX_EDGE_ANGLE_DEG off-axis (see there); other cameras are unaffected.
     """
     if not 0.0 <= balance <= 1.0:
         raise ValueError(f'balance = {balance!r} is invalid: allowed: 0 to 1')
@@ -29,7 +53,7 @@ def new_camera_matrix(camera: CameraModel, balance: float = 0.0, fov_scale: floa
     edges = np.array([[w // 2, 0], [w, h // 2], [w // 2, h], [0, h // 2]], dtype=float)
     pts = camera.undistort(edges)
     if not np.all(np.isfinite(pts)):
-        raise ValueError('the image edges are 90 degrees or more off-axis: no pinhole camera can show them')
+        pts = _edge_points_within_reach(camera, edges)
     cn = pts.mean(axis=0)
     aspect = camera.fx / camera.fy
     cn[0] *= aspect  # sic: OpenCV scales cn[0] but the points' y; kept for identical results
@@ -49,21 +73,32 @@ def new_camera_matrix(camera: CameraModel, balance: float = 0.0, fov_scale: floa
     return np.array([[new_f[0], 0.0, new_c[0]], [0.0, new_f[1], new_c[1]], [0.0, 0.0, 1.0]])
 
 
+def _map_threads(rows: int) -> int:
+    return max(1, min(os.cpu_count() or 1, -(-rows // _MAP_ROWS_PER_CHUNK)))
+
+
 def rectification_maps(camera: CameraModel, P: np.ndarray, size: Tuple[int, int],
-                       R: Optional[np.ndarray] = None) -> Tuple[np.ndarray, np.ndarray]:
+                       R: Optional[np.ndarray] = None,
+                       threads: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray]:
     """Fixed-point maps (CV_16SC2 + CV_16UC1 interpolation table, as cv2.initUndistortRectifyMap
     gives image_proc) sending each pixel of the rectified image (camera matrix P[:3, :3], rotation
-    R) to where ``camera`` saw it. Pixels whose ray the camera cannot see map outside the image."""
+    R) to where ``camera`` saw it. Pixels whose ray the camera cannot see map outside the image.
+
+    Rows are computed in chunks of float64 work on ``threads`` threads (default: one per CPU;
+    numpy and OpenCV release the GIL, so the chunks run in parallel); the result does not depend
+    on the number of threads."""
     width, height = size
     Pinv = np.linalg.inv(np.asarray(P, dtype=float)[:3, :3])
     M = Pinv if R is None else np.asarray(R, dtype=float).T @ Pinv
     map1 = np.empty((height, width, 2), np.int16)
     map2 = np.empty((height, width), np.uint16)
     u = np.arange(width, dtype=float)
-    for top in range(0, height, _MAP_ROWS_PER_CHUNK):
-        v = np.arange(top, min(top + _MAP_ROWS_PER_CHUNK, height), dtype=float)
-        uu, vv = np.meshgrid(u, v)
-        rays = np.stack([uu, vv, np.ones_like(uu)], axis=-1) @ M.T
+
+    def chunk(top):
+        v = np.arange(top, min(top + _MAP_ROWS_PER_CHUNK, height), dtype=float)[:, None]
+        rays = np.empty((len(v), width, 3))
+        for i in range(3):  # rays = M @ (u, v, 1), without a meshgrid
+            rays[..., i] = M[i, 0] * u + (M[i, 1] * v + M[i, 2])
         pix = camera.project(rays).astype(np.float32)
         pix[~np.isfinite(pix)] = -1e4  # unseen: sample the constant border
         np.clip(pix, -1e4, 3e4, out=pix)  # keep within int16 after fixed-point conversion
@@ -71,6 +106,16 @@ def rectification_maps(camera: CameraModel, P: np.ndarray, size: Tuple[int, int]
                                  cv2.CV_16SC2)
         map1[top:top + len(v)] = m1
         map2[top:top + len(v)] = m2
+
+    tops = range(0, height, _MAP_ROWS_PER_CHUNK)
+    threads = _map_threads(height) if threads is None else max(1, int(threads))
+    if threads == 1:
+        for top in tops:
+            chunk(top)
+    else:
+        with ThreadPoolExecutor(max_workers=threads, thread_name_prefix='rectification_maps') as pool:
+            for future in [pool.submit(chunk, top) for top in tops]:
+                future.result()  # re-raises a chunk's exception
     return map1, map2
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, Optional
+from typing import Dict
 
 import numpy as np
 from scipy.optimize import brentq
@@ -24,13 +24,19 @@ from scipy.optimize import brentq
 from .camera_models import ZeroShotCamera
 from .projections import PROJECTIONS, FisheyeProjection
 from .spec import CameraSpec, SpecError
+from .wide_fov import WIDE, WIDE_CHOICES, needs_wide_model, solve_wide
 
-PROJECTION_CHOICES = ('auto',) + tuple(PROJECTIONS)
+PROJECTION_CHOICES = ('auto',) + tuple(PROJECTIONS) + WIDE_CHOICES
 DEFAULT_PROJECTION = 'equidistant'
 
 
 class NoConvergence(RuntimeError):
     """The paper's Newton iteration did not reach a root (the bracketed solver always does)."""
+
+
+class UnrepresentableSpec(SpecError):
+    """The paper's model cannot represent the spec (rays 90 degrees or more off-axis); under
+    projection='auto' the wide model (core/wide_fov.py) takes over."""
 
 
 @dataclass
@@ -81,7 +87,7 @@ def _tan_half(deg: float) -> float:
 def _check_representable(spec: CameraSpec, projection: FisheyeProjection):
     for name, deg in spec.given().items():
         if deg >= 180.0:
-            raise SpecError(name, deg, f'less than 180 degrees for the {projection.name} model',
+            raise UnrepresentableSpec(name, deg, f'less than 180 degrees for the {projection.name} model',
                             f'the {projection.name} model seen through a pinhole (the paper\'s model) '
                             'cannot represent rays 90 degrees or more off-axis')
 
@@ -159,7 +165,7 @@ def _make_camera(spec, projection, omega, f):
                             omega, projection)
     if omega * camera.corner_radius() >= projection.rho_max:
         given = spec.given()
-        raise SpecError(', '.join(given), tuple(given.values()),
+        raise UnrepresentableSpec(', '.join(given), tuple(given.values()),
                         f'FOVs whose image corners stay below 90 degrees off-axis in the {projection.name} model',
                         f'they imply image corners 90 degrees or more off-axis (a diagonal FOV of 180 '
                         f'degrees or more), which the {projection.name} model through a pinhole cannot represent')
@@ -172,12 +178,40 @@ def solve_zero_shot(spec: CameraSpec, projection: str = 'auto', method: str = 'b
     ``projection``: a name in PROJECTIONS, or 'auto': with hfov, vfov and dfov given, the
     projection whose predicted dfov is closest to the given one (the paper's proposed adaptive
     selection, sec. 5); otherwise equidistant, the paper's default.
+    'wide' / 'wide-<law>': the paper's model continued in angle space past 90 degrees off-axis
+    (core/wide_fov.py: FOVs of 180 degrees and more, the circular-fisheye spec form); its camera
+    is a WideFovCamera, ``omega`` its w = a / f (finite; the paper's w* wherever the paper's
+    model represents the spec), ``dfov_residuals`` keyed 'wide-<law>', and it is always solved
+    by bracketing. 'auto' switches to it only when the paper's model cannot represent the spec
+    (a FOV of 180 degrees or more, the circle form, or image corners 90 degrees or more
+    off-axis); every other spec gets the paper's result unchanged.
     ``method``: 'bracketed' (Brent, exact to machine precision) or 'newton' (the paper's).
     """
     if projection not in PROJECTION_CHOICES:
         raise SpecError('projection', projection, ', '.join(PROJECTION_CHOICES))
     if method not in ('bracketed', 'newton'):
         raise SpecError('method', method, 'bracketed, newton')
+    if projection in WIDE_CHOICES or (projection == 'auto' and needs_wide_model(spec)):
+        return _solve_wide(spec, projection)
+    if getattr(spec, 'circle_diameter', None) is not None:
+        raise SpecError('projection', projection, ', '.join(('auto',) + WIDE_CHOICES),
+                        'the circular-fisheye form (circle_diameter, circle_fov) needs the wide model')
+    try:
+        return _solve_paper(spec, projection, method)
+    except UnrepresentableSpec:
+        if projection != 'auto':
+            raise
+        return _solve_wide(spec, projection)
+
+
+def _solve_wide(spec: CameraSpec, projection: str) -> ZeroShotSolution:
+    fit = solve_wide(spec, None if projection in ('auto', WIDE) else projection)
+    residuals = {law: res['dfov'] for law, res in fit.residuals.items() if 'dfov' in res}
+    return ZeroShotSolution(spec, fit.camera, fit.root_found, fit.focal_estimates, 'bracketed', residuals)
+
+
+def _solve_paper(spec: CameraSpec, projection: str, method: str) -> ZeroShotSolution:
+    """The paper's model (every projection choice but the wide ones)."""
     given = spec.given()
 
     if len(given) == 1:

@@ -54,6 +54,18 @@ def _check_fov(field: str, value) -> Optional[float]:
     return value
 
 
+def _check_circle_diameter(value) -> Optional[float]:
+    if value is None:
+        return None
+    allowed = f'pixels, greater than 0 and at most {2 * MAX_IMAGE_SIDE}, or not given'
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SpecError('circle_diameter', value, allowed, 'not a number')
+    value = float(value)
+    if not math.isfinite(value) or not 0.0 < value <= 2 * MAX_IMAGE_SIDE:
+        raise SpecError('circle_diameter', value, allowed)
+    return value
+
+
 @dataclass(frozen=True)
 class CameraSpec:
     """Image size in pixels and the spec-sheet fields of view in degrees.
@@ -62,6 +74,11 @@ class CameraSpec:
     hfov + vfov; hfov alone is the perspective-only case of its C905 row). The FOVs are angles
     between the rays of opposite image edges (hfov), top and bottom (vfov) or opposite corners
     (dfov), through the image centre.
+
+    Circular-fisheye form (optional, both or neither): ``circle_diameter`` (pixels) of the image
+    circle, centred on the image, and ``circle_fov`` (degrees) seen across it. It may stand
+    alone or beside the FOVs; only the wide model (``projection='wide'``, chosen by 'auto')
+    uses it. ``given()`` lists hfov, vfov and dfov only.
     """
 
     width: int
@@ -69,14 +86,24 @@ class CameraSpec:
     hfov: Optional[float] = None
     vfov: Optional[float] = None
     dfov: Optional[float] = None
+    circle_diameter: Optional[float] = None
+    circle_fov: Optional[float] = None
 
     def __post_init__(self):
         object.__setattr__(self, 'width', _check_side('width', self.width))
         object.__setattr__(self, 'height', _check_side('height', self.height))
         for name in ('hfov', 'vfov', 'dfov'):
             object.__setattr__(self, name, _check_fov(name, getattr(self, name)))
-        if self.hfov is None and self.vfov is None and self.dfov is None:
-            raise SpecError('hfov', None, 'at least one of hfov, vfov, dfov', 'no field of view given')
+        object.__setattr__(self, 'circle_diameter', _check_circle_diameter(self.circle_diameter))
+        object.__setattr__(self, 'circle_fov', _check_fov('circle_fov', self.circle_fov))
+        if (self.circle_diameter is None) != (self.circle_fov is None):
+            missing, given = (('circle_fov', 'circle_diameter') if self.circle_fov is None
+                              else ('circle_diameter', 'circle_fov'))
+            raise SpecError(missing, None, f'a value beside {given}',
+                            'the circular-fisheye form needs both the circle diameter and its FOV')
+        if self.hfov is None and self.vfov is None and self.dfov is None and self.circle_fov is None:
+            raise SpecError('hfov', None, 'at least one of hfov, vfov, dfov (or circle_diameter with '
+                            'circle_fov)', 'no field of view given')
         # The diagonal is the longest extent: its FOV must exceed the other two for any
         # radially symmetric lens whose FOV grows with the distance from the centre.
         for name in ('hfov', 'vfov'):
