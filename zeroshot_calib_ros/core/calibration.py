@@ -37,14 +37,14 @@ from typing import List, Optional, Sequence
 import cv2
 import numpy as np
 from scipy import sparse
-from scipy.optimize import brentq, least_squares
+from scipy.optimize import least_squares
 
 from .camera_models import (CameraModel, KannalaBrandtCamera, PinholeCamera, PlumbBobCamera,
                             ZeroShotCamera)
 from .corners import MIN_CORNERS_PER_IMAGE, CornerSet
 from .pose import board_poses, transform
 from .projections import PROJECTIONS, FisheyeProjection
-from .solver import solve_zero_shot
+from .solver import UnrepresentableSpec, solve_zero_shot
 from .spec import CameraSpec, SpecError
 
 METHODS = ('fc', 'fc+zs', 'zhang', 'fisheye')
@@ -107,50 +107,24 @@ def default_camera(width: int, height: int, projection: str = 'equidistant') -> 
     return ZeroShotCamera(f, width / 2.0, height / 2.0, width, height, 1.0 / f, PROJECTIONS[projection])
 
 
-def _equidistant_zero_shot(spec: CameraSpec) -> ZeroShotCamera:
-    """The paper's zero-shot equations (sec. 2.5, J(w) = 0) for hfov + vfov with the equidistant
-    G_w, without the solver's check that the image corners stay below 90 degrees off-axis."""
-    W, H = spec.width, spec.height
-    (r_a, t_a), (r_b, t_b) = sorted([(W / 2.0, math.tan(math.radians(spec.hfov) / 2)),
-                                     (H / 2.0, math.tan(math.radians(spec.vfov) / 2))], reverse=True)
-    if r_a == r_b or t_b / t_a >= r_b / r_a:
-        raise SpecError('vfov', spec.vfov, f'a barrel-distorted pair with hfov = {spec.hfov:g}',
-                        'no zero-shot root')
-
-    def j_stable(omega):
-        return t_b / t_a - math.tan(omega * r_b) / math.tan(omega * r_a)
-
-    hi = np.nextafter(math.pi / 2 / r_a, 0.0)
-    omega = brentq(j_stable, 1e-300, hi, xtol=1e-300, rtol=4 * np.finfo(float).eps, maxiter=500)
-    f = math.tan(omega * r_a) / (omega * t_a)
-    return ZeroShotCamera(f, W / 2.0, H / 2.0, W, H, omega, PROJECTIONS['equidistant'])
-
-
 def zero_shot_camera(spec: CameraSpec, width: Optional[int] = None, height: Optional[int] = None):
     """(ZeroShotCamera, note) of ``spec`` with the paper's equidistant model, at ``width`` x
     ``height`` (a spec at another resolution of the same aspect is scaled).
 
-    ``solve_zero_shot`` refuses specs whose image *corners* would be 90 degrees or more off-axis
-    (they cannot be rectified to a pinhole). Board corners well inside the image can still be
-    mapped, so for calibration and evaluation such an hfov + vfov spec is solved with the same
-    equations without that check, and ``note`` says so (empty otherwise).
+    The paper's model stops at 90 degrees off-axis, so ``solve_zero_shot`` refuses its
+    equidistant model for specs whose image *corners* reach that (a 180-degree lens). Board
+    corners inside the image can still be mapped by the same law, so such a spec is solved with
+    'wide-equidistant' (core/wide_fov.py: the paper's camera written in angle space, identical
+    below 90 degrees), and ``note`` says so (empty otherwise).
     """
     note = ''
     try:
         camera = solve_zero_shot(spec, 'equidistant').camera
-    except SpecError as exc:
-        if spec.hfov is None or spec.vfov is None or spec.hfov >= 180 or spec.vfov >= 180:
-            raise
-        try:
-            camera = _equidistant_zero_shot(spec)
-        except (SpecError, ValueError, ZeroDivisionError):
-            raise exc from None
-        if camera.omega * camera.corner_radius() < math.pi / 2:
-            raise  # refused for another reason: keep the solver's verdict
-        note = ('solve_zero_shot refuses this spec (its image corners would be 90 degrees or more '
-                "off-axis); the paper's zero-shot equations (sec. 2.5) solved without that check give "
-                f'f = {camera.f:.4g} px, w = {camera.omega:.6g} /px, a camera defined within '
-                f'{math.pi / 2 / camera.omega:.1f} px of the image centre')
+    except UnrepresentableSpec:
+        camera = solve_zero_shot(spec, 'wide-equidistant').camera
+        note = ("the paper's model cannot represent this spec (image corners 90 degrees or more "
+                "off-axis); the same equidistant law in angle space (projection 'wide-equidistant') "
+                f'gives f = {camera.f:.4g} px, w = {camera.omega:.6g} /px')
     width = spec.width if width is None else width
     height = spec.height if height is None else height
     if (width, height) != (spec.width, spec.height):
