@@ -118,3 +118,11 @@ def test_setup_py_installs_the_table():
     assert re.search(r"package_data\s*=\s*\{[^}]*(?:'zeroshot_calib_ros'|package_name)\s*:\s*\[[^\]]*"
                      r"['\"]data/(?:\*|camera_presets)\.csv['\"]", setup), \
         "setup.py needs package_data={'zeroshot_calib_ros': ['data/*.csv']}"
+
+
+def test_spec_with_preset_overrides_field_by_field():
+    from zeroshot_calib_ros.core.presets import spec_with_preset
+    spec = spec_with_preset('gopro_hero9_wide', vfov=70.0, hfov=None)
+    assert (spec.width, spec.height, spec.hfov, spec.vfov) == (1920, 1080, 118.0, 70.0)
+    assert spec_with_preset(None, width=640, height=480, hfov=90.0) == spec_with_preset('', width=640,
+                                                                                        height=480, hfov=90.0)

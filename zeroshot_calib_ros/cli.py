@@ -27,7 +27,7 @@ from .core.calibration_file import (DISTORTION_MODELS, CalibrationFileError, Cam
 from .core.camera_models import camera_from_calibration
 from .core.corners import CornerSet, detect_corners, parse_board
 from .core.evaluation import evaluate, evaluation_to_dict, format_tables, reprojection_error
-from .core.presets import get_preset, load_presets
+from .core.presets import load_presets, spec_with_preset
 from .core.rectify import INTERPOLATIONS, Rectifier
 from .core.solver import PROJECTION_CHOICES, NoConvergence, solve_zero_shot
 from .core.spec import CameraSpec, SpecError
@@ -70,14 +70,9 @@ SOLVE_SPEC_FIELDS = ('width', 'height', 'hfov', 'vfov', 'dfov', 'circle_diameter
 
 def _solve_spec(args):
     """The spec of `solve`: the --preset's fields, each overridden by a flag given explicitly."""
-    fields = {}
-    if args.preset:
-        preset = get_preset(args.preset)
-        fields = {k: getattr(preset, k) for k in SOLVE_SPEC_FIELDS}
-    fields.update({k: getattr(args, k) for k in SOLVE_SPEC_FIELDS if getattr(args, k, None) is not None})
-    if fields.get('width') is None or fields.get('height') is None:
+    if not args.preset and (args.width is None or args.height is None):
         raise CliError('--width and --height are required (or --preset NAME, or --batch FILE)')
-    return CameraSpec(**fields)
+    return spec_with_preset(args.preset, **{k: getattr(args, k, None) for k in SOLVE_SPEC_FIELDS})
 
 
 def _cmd_presets(args):
@@ -419,6 +414,9 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.run(args)
+    except BrokenPipeError:  # output piped into `head`: not an error of ours
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except (CliError, SpecError, CalibrationFileError, NoConvergence, ValueError, OSError) as exc:
         print(f'zeroshot-calib: error: {exc}', file=sys.stderr)
         return 2
