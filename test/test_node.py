@@ -1,5 +1,7 @@
 """The installed ROS node, in its own process, seen from another process (this one)."""
 
+import math
+
 import cv2
 import numpy as np
 import pytest
@@ -275,3 +277,23 @@ def test_camera_info_reliability_follows_the_image_publisher(peer, start_node):
                     what='camera_info publisher to become best effort')
     infos = peer.node.get_publishers_info_by_topic('/camera_info')
     assert infos[0].qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+
+
+def test_preset_and_circular_fisheye_parameters(peer, start_node):
+    start_node('--ros-args', '-p', 'preset:=gopro_hero9_wide', '-p', 'vfov:=70')  # vfov overrides
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='camera_info of the preset')
+    assert (infos[0].width, infos[0].height) == (1920, 1080)
+    assert infos[0].k[0] == pytest.approx(solve_zero_shot(CameraSpec(1920, 1080, 118, 70)).f, abs=1e-6)
+    result = set_parameter(peer, 'preset', 'no_such_camera')
+    assert not result.successful and "preset = 'no_such_camera'" in result.reason and 'unknown preset' in result.reason
+
+
+def test_wide_lens_beyond_180_degrees(peer, start_node):
+    start_node('--ros-args', '-p', 'width:=1280', '-p', 'height:=960', '-p', 'circle_diameter:=900',
+               '-p', 'circle_fov:=200', '-p', 'projection:=auto')
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='camera_info of a 200-degree circular fisheye')
+    expected = solve_zero_shot(CameraSpec(1280, 960, circle_diameter=900, circle_fov=200))
+    assert infos[0].k[0] == pytest.approx(expected.f, abs=1e-6) and infos[0].distortion_model == 'equidistant'
+    assert all(math.isfinite(x) for x in list(infos[0].d) + list(infos[0].p))
