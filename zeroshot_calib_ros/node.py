@@ -4,18 +4,35 @@
 
 Only ROS plumbing lives here (parameters, topics, the service, QoS); every computation is in
 ``zeroshot_calib_ros.core``.
+
+Threads: every ROS callback runs on the executor thread (rclpy.spin), and only there is the
+calibration in force (``_active``) replaced. Rectification maps of a new calibration (start-up,
+parameter change, set_camera_info) are built on a builder thread while frames keep the
+calibration in force; when they are ready, a guard condition swaps the new calibration in on the
+executor thread. So a parameter change never stalls the stream, and every frame's CameraInfo and
+image_rect come from one calibration.
 """
 from __future__ import annotations
 
 import array
 import os
 import sys
+import threading
+import time
 from collections import Counter
 from dataclasses import dataclass
 from typing import Optional
 
-import numpy as np
-import rclpy
+# OpenCV's thread pool spins (busy-waits, sched_yield) around each parallel call before sleeping;
+# with the image publisher and subscribers on the same few cores that steals their CPU (py-spy:
+# 15 % of the node's samples in sched_yield; without the spinning the node sustained 26-38 % more
+# frames per second at 1080p bgr8 on 2 cores). Read once, when cv2 loads, so set before the core
+# modules import it; an environment that sets them wins.
+for _name in ('OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER', 'OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN'):
+    os.environ.setdefault(_name, '0')
+
+import numpy as np  # noqa: E402
+import rclpy  # noqa: E402
 import rclpy.executors
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType,
@@ -31,16 +48,23 @@ from .core.calibration_file import (DISTORTION_MODELS, CalibrationFileError, Cam
 from .core.image_frames import ENCODINGS, ActiveCalibration, FrameSkipped, image_array
 from .core.rectify import INTERPOLATIONS
 from .core.solver import PROJECTION_CHOICES, NoConvergence, solve_zero_shot
+from .core.presets import spec_with_preset
 from .core.spec import MAX_IMAGE_SIDE, CameraSpec, SpecError
 
 NODE_NAME = 'zeroshot_calib'
-SPEC_PARAMETERS = ('width', 'height', 'hfov', 'vfov', 'dfov', 'projection')
+SPEC_PARAMETERS = ('preset', 'width', 'height', 'hfov', 'vfov', 'dfov', 'circle_diameter', 'circle_fov',
+                   'projection')
 CALIBRATION_PARAMETERS = SPEC_PARAMETERS + ('distortion_model', 'camera_name')
 RECTIFICATION_PARAMETERS = ('balance', 'fov_scale', 'rectify', 'interpolation')
-FOV_PARAMETERS = ('hfov', 'vfov', 'dfov')
+FOV_PARAMETERS = ('hfov', 'vfov', 'dfov', 'circle_fov')
 IMAGE_IDLE_SECONDS = 1.0
 """Timer-driven CameraInfo resumes when no image arrived for this long."""
 WARN_THROTTLE_SECONDS = 5.0
+REBUILD_MAP_THREADS = 1
+"""Threads building the maps of a new calibration while frames stream: one, so the stream keeps
+the other cores (with one per CPU, the longest gap between 1080p frames during a rebuild on 2
+cores reached 318 ms, with one 40-90 ms; benchmarks/startup_and_memory.py). At start-up and
+when no frame came for IMAGE_IDLE_SECONDS: one per CPU."""
 
 
 def _descriptor(description, kind, read_only=False, fp_range=None, int_range=None,
@@ -60,10 +84,10 @@ PARAMETERS = {
     # No camera is assumed: width, height and at least one FOV must be given (0 = not given).
     # Numbers are typed dynamically so that `-p hfov:=118` or `balance: 1` (INTEGERs on the
     # command line and in YAML) and `width:=1920.0` are accepted; the node checks every value.
-    'width': (0, _descriptor('Image width in pixels (required)', D.PARAMETER_INTEGER,
+    'width': (0, _descriptor('Image width in pixels (required unless the preset gives it)', D.PARAMETER_INTEGER,
                              int_range=(0, MAX_IMAGE_SIDE), dynamic=True,
                              constraints=f'an integer from 1 to {MAX_IMAGE_SIDE}')),
-    'height': (0, _descriptor('Image height in pixels (required)', D.PARAMETER_INTEGER,
+    'height': (0, _descriptor('Image height in pixels (required unless the preset gives it)', D.PARAMETER_INTEGER,
                               int_range=(0, MAX_IMAGE_SIDE), dynamic=True,
                               constraints=f'an integer from 1 to {MAX_IMAGE_SIDE}')),
     'hfov': (0.0, _descriptor('Horizontal field of view from the spec sheet, degrees (0 = not given; '
@@ -76,6 +100,16 @@ PARAMETERS = {
                               'hfov and vfov it selects the projection', D.PARAMETER_DOUBLE,
                               fp_range=(0.0, 360.0), dynamic=True,
                               constraints='a number in [0, 360); 0 means not given')),
+    'circle_diameter': (0.0, _descriptor('Circular fisheye: diameter of the image circle, pixels (0 = not '
+                                         'given); with circle_fov', D.PARAMETER_DOUBLE,
+                                         fp_range=(0.0, 2.0 * MAX_IMAGE_SIDE), dynamic=True,
+                                         constraints='a number of pixels; 0 means not given')),
+    'circle_fov': (0.0, _descriptor('Circular fisheye: field of view across the image circle, degrees '
+                                    '(0 = not given)', D.PARAMETER_DOUBLE, fp_range=(0.0, 360.0), dynamic=True,
+                                    constraints='a number in [0, 360); 0 means not given')),
+    'preset': ('', _descriptor('Camera preset (published spec sheet, `zeroshot-calib presets` lists them); '
+                               'width, height and FOV parameters that are not 0 override its fields',
+                               D.PARAMETER_STRING)),
     'projection': ('auto', _descriptor('Fisheye projection of the lens', D.PARAMETER_STRING,
                                        constraints='one of: ' + ', '.join(PROJECTION_CHOICES))),
     'camera_name': ('camera', _descriptor('camera_name written to calibration files', D.PARAMETER_STRING)),
@@ -133,33 +167,107 @@ class Settings:
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise SpecError(name, value, 'a number of degrees in [0, 360); 0 means not given')
         fovs = {n: (float(values[n]) if values[n] != 0 else None) for n in FOV_PARAMETERS}
-        spec = CameraSpec(values['width'], values['height'], **fovs)
-        if values['projection'] not in PROJECTION_CHOICES:
-            raise SpecError('projection', values['projection'], ', '.join(PROJECTION_CHOICES))
-        if values['distortion_model'] not in DISTORTION_MODELS:
-            raise SpecError('distortion_model', values['distortion_model'], ', '.join(DISTORTION_MODELS))
-        if values['interpolation'] not in INTERPOLATIONS:
-            raise SpecError('interpolation', values['interpolation'], '0, 1, 2 or 4')
+        circle = values['circle_diameter']
+        if isinstance(circle, bool) or not isinstance(circle, (int, float)):
+            raise SpecError('circle_diameter', circle, 'a number of pixels; 0 means not given')
+        if not isinstance(values['preset'], str):
+            raise SpecError('preset', values['preset'], 'a preset name')
+        size = {n: values[n] for n in ('width', 'height')}
+        if values['preset']:  # 0 = take the preset's
+            size = {n: (v if v != 0 else None) for n, v in size.items()}
+        spec = spec_with_preset(values['preset'], **size, **fovs,
+                                circle_diameter=float(circle) if circle != 0 else None)
+        # rclpy enforces the types of the parameters below; checked again for other callers
+        for name, choices in (('projection', PROJECTION_CHOICES), ('distortion_model', DISTORTION_MODELS)):
+            if not isinstance(values[name], str) or values[name] not in choices:
+                raise SpecError(name, values[name], ', '.join(choices))
+        interpolation = values['interpolation']
+        if isinstance(interpolation, bool) or not isinstance(interpolation, int) or \
+                interpolation not in INTERPOLATIONS:
+            raise SpecError('interpolation', interpolation, '0, 1, 2 or 4')
+        if not isinstance(values['rectify'], bool):
+            raise SpecError('rectify', values['rectify'], 'true or false')
+        if not isinstance(values['camera_name'], str):
+            raise SpecError('camera_name', values['camera_name'], 'a string')
         _number('publish_rate', values['publish_rate'], 0.01, 1000.0)
         return cls(spec, values['projection'], values['distortion_model'], values['camera_name'],
                    _number('balance', values['balance'], 0.0, 1.0),
-                   _number('fov_scale', values['fov_scale'], 0.1, 10.0), bool(values['rectify']),
-                   int(values['interpolation']))
+                   _number('fov_scale', values['fov_scale'], 0.1, 10.0), values['rectify'],
+                   int(interpolation))
 
 
-def solve_from_settings(settings: Settings, generation: int):
-    """ActiveCalibration solved from the spec, and its summary."""
+def solve_from_settings(settings: Settings, generation: int, build_maps: bool = True):
+    """ActiveCalibration solved from the spec, and its summary (maps built unless ``build_maps``
+    is False: then ``prepare()`` or the first frame builds them)."""
     solution = solve_zero_shot(settings.spec, settings.projection)
     calibration, fit = CameraCalibration.from_solution(
         solution, settings.distortion_model, settings.balance, settings.fov_scale, settings.camera_name)
     active = ActiveCalibration(calibration, solution.camera, 'spec', generation, settings.rectify,
-                               settings.interpolation)
+                               settings.interpolation, build_maps=build_maps)
     return active, solution_summary(solution, calibration, fit)
 
 
 def _calibration_from_msg(msg: CameraInfo, camera_name: str) -> CameraCalibration:
     return CameraCalibration(int(msg.width), int(msg.height), np.array(msg.k), msg.distortion_model,
                              np.array(msg.d), np.array(msg.r), np.array(msg.p), camera_name)
+
+
+@dataclass
+class _Job:
+    """A calibration whose maps the builder thread prepares before it is swapped in."""
+
+    active: ActiveCalibration
+    log: str = ''
+    map_threads: Optional[int] = REBUILD_MAP_THREADS
+    seconds: float = 0.0
+    error: Optional[BaseException] = None
+
+
+class _CalibrationBuilder:
+    """One thread that builds maps for the newest calibration asked for: a request superseded by
+    a newer one before its turn is dropped. ``done(job)`` is called on the builder thread."""
+
+    def __init__(self, done):
+        self._done = done
+        self._cond = threading.Condition()
+        self._pending: Optional[_Job] = None
+        self._stopped = False
+        self._thread = threading.Thread(target=self._run, name='calibration_builder', daemon=True)
+        self._thread.start()
+
+    @property
+    def pending(self) -> Optional[_Job]:
+        return self._pending
+
+    def submit(self, job: _Job):
+        with self._cond:
+            self._pending = job
+            self._cond.notify()
+
+    def stop(self, timeout: float = 5.0):
+        with self._cond:
+            self._stopped = True
+            self._cond.notify()
+        self._thread.join(timeout)
+
+    def _run(self):
+        while True:
+            with self._cond:
+                while self._pending is None and not self._stopped:
+                    self._cond.wait()
+                if self._stopped:
+                    return
+                job = self._pending
+            start = time.monotonic()
+            try:
+                job.active.prepare(job.map_threads)
+            except Exception as exc:  # reported by the node; the calibration in force stays
+                job.error = exc
+            job.seconds = time.monotonic() - start
+            with self._cond:
+                if self._pending is job:
+                    self._pending = None
+            self._done(job)
 
 
 def _fill_camera_info(msg: CameraInfo, calibration: CameraCalibration):
@@ -182,18 +290,29 @@ class ZeroShotCalibNode(Node):
             self.declare_parameter(name, default, descriptor)
         self._stats = Counter()
         self._warned_at = {}
-        self._last_image_time = None
+        self._last_image_time = None  # time.monotonic() of the last frame
         # Until an image publisher is seen: reliable CameraInfo (what late joiners and the
         # default subscriber QoS want), best-effort image_raw (accepts either kind of publisher).
         self._reliability = ReliabilityPolicy.RELIABLE
         self._image_reliability = ReliabilityPolicy.BEST_EFFORT
         self._out_buffer = None
+        self._rect_msg = Image()
+        self._info_cache = (None, None)  # (calibration, its CameraInfo), reused frame after frame
+        self._maps_build_ms = float('nan')
 
         settings = Settings.from_values(self._values())
         self._settings = settings
         self._url_path = resolve_camera_info_url(self.get_parameter('camera_info_url').value,
                                                  settings.camera_name)
+        # The calibration is in force at once (CameraInfo needs no maps); its maps are built on
+        # the builder thread, and a frame arriving before they are ready waits for them.
         self._active = self._initial_calibration(settings)
+        self._newest = self._active  # the last calibration accepted (in force or being built)
+        self._generation = self._active.generation
+        self._built = []
+        self._built_lock = threading.Lock()
+        self._built_guard = self.create_guard_condition(self._on_calibration_built)
+        self._builder = _CalibrationBuilder(self._on_builder_done)
 
         self._create_endpoints()
         self._set_camera_info_srv = self.create_service(SetCameraInfo, 'set_camera_info',
@@ -204,6 +323,8 @@ class ZeroShotCalibNode(Node):
         self._housekeeping_timer = self.create_timer(1.0, self._on_housekeeping)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._on_info_timer()
+        if self._active.rectify_enabled:  # after the first CameraInfo is out
+            self._builder.submit(_Job(self._active, map_threads=None))
 
     # --- start-up -------------------------------------------------------------------------
     def _values(self, overrides=None) -> dict:
@@ -217,7 +338,7 @@ class ZeroShotCalibNode(Node):
             try:
                 calibration = CameraCalibration.load(self._url_path)
                 active = ActiveCalibration(calibration, calibration.camera(), f'file {self._url_path}', 0,
-                                           settings.rectify, settings.interpolation)
+                                           settings.rectify, settings.interpolation, build_maps=False)
             except (CalibrationFileError, ValueError) as exc:
                 self.get_logger().error(f'ignoring camera_info_url: {exc}; solving from the spec instead')
             else:
@@ -225,7 +346,7 @@ class ZeroShotCalibNode(Node):
                     f'calibration loaded from {self._url_path} (takes precedence over the spec):\n'
                     f'  K {calibration.K.tolist()}\n  {calibration.distortion_model} D {calibration.D.tolist()}')
                 return active
-        active, summary = solve_from_settings(settings, 0)
+        active, summary = solve_from_settings(settings, 0, build_maps=False)
         self.get_logger().info('zero-shot calibration from the spec sheet:\n' + summary_text(summary))
         return active
 
@@ -245,21 +366,24 @@ class ZeroShotCalibNode(Node):
 
     # --- publishing -----------------------------------------------------------------------
     def _on_info_timer(self):
-        now = self.get_clock().now()
         if self._last_image_time is not None and \
-                (now - self._last_image_time).nanoseconds < IMAGE_IDLE_SECONDS * 1e9:
+                time.monotonic() - self._last_image_time < IMAGE_IDLE_SECONDS:
             return  # images are flowing: CameraInfo goes out with each frame instead
         msg = CameraInfo()
         _fill_camera_info(msg, self._active.calibration)
-        msg.header.stamp = now.to_msg()
+        msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = self.get_parameter('frame_id').value
         self._info_pub.publish(msg)
 
     def _on_image(self, msg: Image):
         self._stats['frames_received'] += 1
-        self._last_image_time = self.get_clock().now()
+        self._last_image_time = time.monotonic()
         active = self._active  # one snapshot per frame: CameraInfo and image_rect agree
         try:
+            if active.rectify_enabled and len(msg.data) < msg.width * msg.height:
+                # no maps are built for a size the data does not back (any encoding >= 1 byte/px)
+                raise FrameSkipped('malformed', f'data has {len(msg.data)} bytes, fewer than one per pixel '
+                                   f'of {msg.width}x{msg.height}')
             calibration, rectifier = active.for_size(msg.width, msg.height)
         except FrameSkipped as exc:
             self._skip(exc)
@@ -267,8 +391,7 @@ class ZeroShotCalibNode(Node):
         except Exception as exc:  # never let a frame take the node down
             self._skip(FrameSkipped('error', f'cannot calibrate frame: {exc}'))
             return
-        info = CameraInfo()
-        _fill_camera_info(info, calibration)
+        info = self._camera_info_for(calibration)
         info.header = msg.header
         self._info_pub.publish(info)
         self._stats['camera_info_published'] += 1
@@ -280,6 +403,16 @@ class ZeroShotCalibNode(Node):
             except Exception as exc:
                 self._skip(FrameSkipped('error', f'cannot rectify frame: {exc}'))
 
+    def _camera_info_for(self, calibration: CameraCalibration) -> CameraInfo:
+        """The CameraInfo of ``calibration``, filled once and reused (only the header changes;
+        publish() serialises the message before it returns)."""
+        cached_calibration, info = self._info_cache
+        if cached_calibration is not calibration:
+            info = CameraInfo()
+            _fill_camera_info(info, calibration)
+            self._info_cache = (calibration, info)
+        return info
+
     def _publish_rectified(self, msg: Image, rectifier):
         image = image_array(msg.data, msg.width, msg.height, msg.step, msg.encoding, msg.is_bigendian)
         nbytes = image.nbytes
@@ -289,7 +422,7 @@ class ZeroShotCalibNode(Node):
             self._out_buffer = array.array('B', bytes(nbytes))
         out = np.frombuffer(self._out_buffer, dtype=image.dtype).reshape(image.shape)
         rectifier.rectify(image, out=out)
-        rect = Image()
+        rect = self._rect_msg
         rect.header = msg.header
         rect.height, rect.width = image.shape[:2]
         rect.encoding = msg.encoding
@@ -332,9 +465,11 @@ class ZeroShotCalibNode(Node):
         status = DiagnosticStatus(level=DiagnosticStatus.OK, name=f'{self.get_name()}: calibration',
                                   hardware_id=self._active.calibration.camera_name,
                                   message=f'calibration from {self._active.source}')
+        pending = self._builder.pending
         values = {'source': self._active.source, 'generation': self._active.generation,
                   'fx': self._active.calibration.K[0, 0], 'qos_reliability': self._reliability.name,
-                  **self._stats}
+                  'pending_generation': pending.active.generation if pending else '',
+                  'maps_build_ms': f'{self._maps_build_ms:.1f}', **self._stats}
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
@@ -345,36 +480,95 @@ class ZeroShotCalibNode(Node):
         names = {p.name for p in parameters}
         if not names & set(CALIBRATION_PARAMETERS + RECTIFICATION_PARAMETERS):
             return SetParametersResult(successful=True)
+        # Checked and solved here (a rejection must name its reason); the maps are built on the
+        # builder thread, and the new calibration is swapped in when they are ready.
+        basis = self._newest
+        generation = self._generation + 1
         try:
             settings = Settings.from_values(self._values(parameters))
-            if names & set(CALIBRATION_PARAMETERS) or self._active.source == 'spec':
-                active, summary = solve_from_settings(settings, self._active.generation + 1)
+            if names & set(CALIBRATION_PARAMETERS) or basis.source == 'spec':
+                active, summary = solve_from_settings(settings, generation, build_maps=False)
             else:  # a file / set_camera_info calibration stays; only P or the maps change
-                active = ActiveCalibration(self._active.calibration, self._active.camera,
-                                           self._active.source, self._active.generation + 1,
-                                           settings.rectify, settings.interpolation)
+                active = ActiveCalibration(basis.calibration, basis.camera, basis.source, generation,
+                                           settings.rectify, settings.interpolation, build_maps=False)
                 if names & {'balance', 'fov_scale'}:
-                    active = active.with_rectification(settings.balance, settings.fov_scale)
+                    active = active.with_rectification(settings.balance, settings.fov_scale, build_maps=False)
                 summary = None
         except (SpecError, CalibrationFileError, NoConvergence, ValueError) as exc:
             self.get_logger().warning(f'parameter change rejected, calibration unchanged: {exc}')
             return SetParametersResult(successful=False, reason=str(exc))
-        self._settings, self._active = settings, active
-        if summary is not None:
-            self.get_logger().info('parameters changed, re-solved:\n' + summary_text(summary))
+        except Exception as exc:  # never let a parameter value take the node down
+            self.get_logger().error(f'parameter change rejected, calibration unchanged: {exc!r}')
+            return SetParametersResult(successful=False, reason=f'cannot calibrate with these values: {exc!r}')
+        self._settings = settings
+        self._adopt(active, 'parameters changed, re-solved:\n' + summary_text(summary) if summary else
+                    'parameters changed')
         return SetParametersResult(successful=True)
+
+    # --- calibrations swapped in when their maps are ready --------------------------------
+    def _adopt(self, active: ActiveCalibration, log: str):
+        """``active`` in force once its maps are built (at once without rectification). Later
+        changes build on it (``_newest``) even before it is in force."""
+        self._generation = max(self._generation, active.generation)
+        self._newest = active
+        if not active.rectify_enabled:  # nothing to build: in force at once
+            self._swap_in(_Job(active.prepare(), log))
+            return
+        streaming = self._last_image_time is not None and \
+            time.monotonic() - self._last_image_time < IMAGE_IDLE_SECONDS
+        self._builder.submit(_Job(active, log, map_threads=REBUILD_MAP_THREADS if streaming else None))
+
+    def _on_builder_done(self, job: _Job):
+        """Builder thread: hand the job to the executor thread."""
+        with self._built_lock:
+            self._built.append(job)
+        try:
+            self._built_guard.trigger()
+        except Exception:  # shutting down
+            pass
+
+    def _on_calibration_built(self):
+        with self._built_lock:
+            jobs, self._built = self._built, []
+        for job in jobs:
+            if job.error is not None:
+                self._stats['calibration_build_failed'] += 1
+                self.get_logger().error(f'calibration (generation {job.active.generation}) not adopted, '
+                                        f'building its maps failed: {job.error!r}')
+                continue
+            self._maps_build_ms = job.seconds * 1e3
+            if job.active.rectify_enabled:
+                self.get_logger().info(f'rectification maps of generation {job.active.generation} built '
+                                       f'in {job.seconds * 1e3:.0f} ms')
+            if job.active is not self._active:
+                self._swap_in(job)
+
+    def _swap_in(self, job: _Job):
+        if job.active.generation <= self._active.generation:
+            return  # superseded while it was built
+        self._active = job.active
+        self._stats['calibrations_adopted'] += 1
+        if job.log:
+            self.get_logger().info(job.log)
+        self._on_info_timer()  # late joiners and idle streams see the change at once
+
+    def destroy_node(self):
+        builder = getattr(self, '_builder', None)
+        if builder is not None:
+            builder.stop()
+        return super().destroy_node()
 
     def _on_set_camera_info(self, request, response):
         try:
             calibration = _calibration_from_msg(request.camera_info, self._settings.camera_name)
             active = ActiveCalibration(calibration, calibration.camera(), 'set_camera_info',
-                                       self._active.generation + 1, self._settings.rectify,
-                                       self._settings.interpolation)
+                                       self._generation + 1, self._settings.rectify,
+                                       self._settings.interpolation, build_maps=False)
         except (CalibrationFileError, ValueError) as exc:
             response.success, response.status_message = False, f'rejected: {exc}'
             self.get_logger().warning(f'set_camera_info {response.status_message}')
             return response
-        self._active = active
+        self._adopt(active, 'calibration from set_camera_info adopted')
         response.success, response.status_message = True, 'calibration adopted'
         if self._url_path:
             try:

@@ -121,9 +121,9 @@ def spec_with_preset(preset: Optional[str], **fields) -> CameraSpec:
     """The CameraSpec of ``preset`` (None or '': no preset) with every field given in ``fields``
     (not None) taking the place of the preset's: what `solve --preset` and the node's ``preset``
     parameter mean."""
-    merged = {}
-    if preset:
-        spec = get_preset(preset)
-        merged = {k: getattr(spec, k) for k in SPEC_FIELDS}
+    if not preset:
+        return CameraSpec(**fields)  # CameraSpec names a missing or invalid field
+    spec = get_preset(preset)
+    merged = {k: getattr(spec, k) for k in SPEC_FIELDS}
     merged.update({k: v for k, v in fields.items() if v is not None})
     return CameraSpec(**merged)

@@ -123,11 +123,12 @@ class Rectifier:
     """Undistorts images of ``camera`` into the pinhole camera ``P``; maps are built once.
 
     ``rectify`` writes into a caller-provided buffer when given one, so a stream of frames
-    costs one cv2.remap each and no allocation.
+    costs one cv2.remap each and no allocation. ``map_threads``: threads building the maps
+    (default: one per CPU).
     """
 
     def __init__(self, camera: CameraModel, balance: float = 0.0, fov_scale: float = 1.0,
-                 interpolation: int = 1, P: Optional[np.ndarray] = None):
+                 interpolation: int = 1, P: Optional[np.ndarray] = None, map_threads: Optional[int] = None):
         if interpolation not in INTERPOLATIONS:
             raise ValueError(f'interpolation = {interpolation!r} is invalid: allowed: 0 (nearest), '
                              '1 (linear), 2 (cubic), 4 (lanczos4)')
@@ -135,7 +136,7 @@ class Rectifier:
         self.P = new_camera_matrix(camera, balance, fov_scale) if P is None else np.asarray(P, float)[:3, :3]
         self.size = (camera.width, camera.height)
         self.interpolation = INTERPOLATIONS[interpolation]
-        self.map1, self.map2 = rectification_maps(camera, self.P, self.size)
+        self.map1, self.map2 = rectification_maps(camera, self.P, self.size, threads=map_threads)
 
     def rectify(self, image: np.ndarray, out: Optional[np.ndarray] = None) -> np.ndarray:
         h, w = image.shape[:2]
