@@ -12,10 +12,12 @@ from pathlib import Path
 
 import pytest
 import rclpy
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
 
 REPO = Path(__file__).resolve().parents[1]
 NODE_EXECUTABLE = REPO / 'install' / 'zeroshot_calib_ros' / 'lib' / 'zeroshot_calib_ros' / 'node'
@@ -136,3 +138,47 @@ def start_node(domain_id, tmp_path):
     yield start
     for process in started:
         process.stop()
+
+
+def image_msg(array, encoding, stamp_ns, frame_id='cam'):
+    msg = Image()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+    msg.header.frame_id = frame_id
+    msg.height, msg.width = array.shape[:2]
+    msg.encoding = encoding
+    msg.step = array.strides[0]
+    msg.data = array.tobytes()
+    return msg
+
+
+def diagnostics_value(messages, key):
+    for msg in reversed(messages):
+        for status in msg.status:
+            for kv in status.values:
+                if kv.key == key:
+                    return kv.value
+    return None
+
+
+def parameter_msg(name, value):
+    """rcl_interfaces/Parameter of any Python value (None: NOT_SET; lists: arrays)."""
+    p = Parameter(name=name)
+    if value is None:
+        p.value = ParameterValue(type=ParameterType.PARAMETER_NOT_SET)
+    elif isinstance(value, bool):
+        p.value = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value)
+    elif isinstance(value, int):
+        p.value = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
+    elif isinstance(value, float):
+        p.value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
+    elif isinstance(value, str):
+        p.value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+    elif all(isinstance(v, bool) for v in value):
+        p.value = ParameterValue(type=ParameterType.PARAMETER_BOOL_ARRAY, bool_array_value=list(value))
+    elif all(isinstance(v, int) for v in value):
+        p.value = ParameterValue(type=ParameterType.PARAMETER_INTEGER_ARRAY, integer_array_value=list(value))
+    elif all(isinstance(v, float) for v in value):
+        p.value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=list(value))
+    else:
+        p.value = ParameterValue(type=ParameterType.PARAMETER_STRING_ARRAY, string_array_value=list(value))
+    return p

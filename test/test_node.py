@@ -7,51 +7,26 @@ import numpy as np
 import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from sensor_msgs.srv import SetCameraInfo
 
-from ros_peer import LATCHED, REPO, domain_id, peer, qos, start_node  # noqa: F401 (fixtures)
+from ros_peer import (LATCHED, REPO, diagnostics_value, domain_id, image_msg, parameter_msg, peer,  # noqa: F401
+                      qos, start_node)
 from synthetic import find_corners, line_residuals, render_checkerboard
 from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
 
 W1_ARGS = ['--ros-args', '-p', 'hfov:=118', '-p', 'vfov:=69', '-p', 'width:=1920', '-p', 'height:=1080']
 
 
-def image_msg(array, encoding, stamp_sec, frame_id='cam'):
-    msg = Image()
-    msg.header.stamp.sec = stamp_sec
-    msg.header.stamp.nanosec = 123456789
-    msg.header.frame_id = frame_id
-    msg.height, msg.width = array.shape[:2]
-    msg.encoding = encoding
-    msg.step = array.strides[0]
-    msg.data = array.tobytes()
-    return msg
-
-
-def diagnostics_value(messages, key):
-    for msg in reversed(messages):
-        for status in msg.status:
-            for kv in status.values:
-                if kv.key == key:
-                    return kv.value
-    return None
+def frame(array, encoding, stamp_sec):
+    return image_msg(array, encoding, stamp_sec * 1_000_000_000 + 123456789)
 
 
 def set_parameter(peer, name, value):
-    param = Parameter(name=name)
-    if isinstance(value, float):
-        param.value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
-    elif isinstance(value, bool):
-        param.value = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value)
-    elif isinstance(value, int):
-        param.value = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
-    else:
-        param.value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
-    return peer.call(SetParameters, '/zeroshot_calib/set_parameters', SetParameters.Request(parameters=[param])).results[0]
+    request = SetParameters.Request(parameters=[parameter_msg(name, value)])
+    return peer.call(SetParameters, '/zeroshot_calib/set_parameters', request).results[0]
 
 
 def test_camera_info_from_integer_command_line_parameters(peer, start_node):
@@ -183,7 +158,7 @@ def test_rectified_stream_keeps_stamps_and_straightens_lines(peer, start_node):
     peer.spin_for(1.5)  # let the node match the publisher's QoS
     sent = []
     for i in range(5):
-        msg = image_msg(image, 'mono8', 1000 + i)
+        msg = frame(image, 'mono8', 1000 + i)
         sent.append((msg.header.stamp.sec, msg.header.stamp.nanosec))
         pub.publish(msg)
         peer.spin_for(0.2)
@@ -212,18 +187,18 @@ def test_bad_frames_are_skipped_counted_and_survived(peer, start_node):
     peer.spin_until(lambda: pub.get_subscription_count() > 0, what='node subscribing')
     peer.spin_for(1.5)
     good = np.full((360, 640, 3), 90, np.uint8)
-    bayer = image_msg(np.zeros((360, 640), np.uint8), 'bayer_rggb8', 2000)
-    wrong_aspect = image_msg(np.zeros((480, 640, 3), np.uint8), 'bgr8', 2001)
-    short = image_msg(good, 'bgr8', 2002)
+    bayer = frame(np.zeros((360, 640), np.uint8), 'bayer_rggb8', 2000)
+    wrong_aspect = frame(np.zeros((480, 640, 3), np.uint8), 'bgr8', 2001)
+    short = frame(good, 'bgr8', 2002)
     short.data = short.data[:-10]
-    bad_step = image_msg(good, 'bgr8', 2003)
+    bad_step = frame(good, 'bgr8', 2003)
     bad_step.step = 100
-    empty = image_msg(np.zeros((0, 0), np.uint8), 'mono8', 2004)
+    empty = frame(np.zeros((0, 0), np.uint8), 'mono8', 2004)
     for msg in (bayer, wrong_aspect, short, bad_step, empty):
         pub.publish(msg)
         peer.spin_for(0.1)
-    pub.publish(image_msg(good, 'bgr8', 2005))
-    half = image_msg(np.full((180, 320), 50, np.uint8), 'mono8', 2006)
+    pub.publish(frame(good, 'bgr8', 2005))
+    half = frame(np.full((180, 320), 50, np.uint8), 'mono8', 2006)
     pub.publish(half)
     peer.spin_until(lambda: {2005, 2006} <= {m.header.stamp.sec for m in rects}, what='good frames rectified')
     peer.spin_until(lambda: diagnostics_value(diagnostics, 'frames_skipped_malformed') == '3',
@@ -256,7 +231,7 @@ def test_every_supported_encoding_is_rectified(peer, start_node, encoding, dtype
     shape = (90, 160) if channels == 1 else (90, 160, channels)
     array = np.full(shape, 300 if dtype != np.uint8 else 200, dtype)
     peer.spin_for(1.5)
-    pub.publish(image_msg(array, encoding, 3000))
+    pub.publish(frame(array, encoding, 3000))
     peer.spin_until(lambda: rects, what='image_rect')
     rect = rects[0]
     assert rect.encoding == encoding and rect.step == 160 * channels * np.dtype(dtype).itemsize

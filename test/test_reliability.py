@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from hypothesis import HealthCheck, given, settings, strategies as st
-from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters, SetParametersAtomically
 from rclpy.qos import ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
-from ros_peer import domain_id, peer, qos, start_node  # noqa: F401 (fixtures)
+from ros_peer import (diagnostics_value, domain_id, image_msg, parameter_msg, peer, qos,  # noqa: F401
+                      start_node)
 from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
 from zeroshot_calib_ros.core.calibration_file import CalibrationFileError, CameraCalibration
 from zeroshot_calib_ros.core.image_frames import ENCODINGS, ActiveCalibration, FrameSkipped, image_array
@@ -254,51 +254,8 @@ def test_singular_rectified_camera_is_rejected_before_maps(small_camera):
 
 
 # --- through the node ------------------------------------------------------------------------------
-def _param(name, value):
-    p = Parameter(name=name)
-    if value is None:
-        p.value = ParameterValue(type=ParameterType.PARAMETER_NOT_SET)
-    elif isinstance(value, bool):
-        p.value = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value)
-    elif isinstance(value, int):
-        p.value = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
-    elif isinstance(value, float):
-        p.value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
-    elif isinstance(value, str):
-        p.value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
-    elif all(isinstance(v, bool) for v in value):
-        p.value = ParameterValue(type=ParameterType.PARAMETER_BOOL_ARRAY, bool_array_value=list(value))
-    elif all(isinstance(v, int) for v in value):
-        p.value = ParameterValue(type=ParameterType.PARAMETER_INTEGER_ARRAY, integer_array_value=list(value))
-    elif all(isinstance(v, float) for v in value):
-        p.value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=list(value))
-    else:
-        p.value = ParameterValue(type=ParameterType.PARAMETER_STRING_ARRAY, string_array_value=list(value))
-    return p
-
-
-def image_msg(array, encoding, stamp_ns, frame_id='cam'):
-    msg = Image()
-    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
-    msg.header.frame_id = frame_id
-    msg.height, msg.width = array.shape[:2]
-    msg.encoding = encoding
-    msg.step = array.strides[0]
-    msg.data = array.tobytes()
-    return msg
-
-
 def stamp_of(msg):
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-
-
-def diagnostics_value(messages, key):
-    for msg in reversed(messages):
-        for status in msg.status:
-            for kv in status.values:
-                if kv.key == key:
-                    return kv.value
-    return None
 
 
 def finite_info(msg):
@@ -346,7 +303,7 @@ def test_bad_parameters_through_the_node_never_stop_it(peer, start_node):
              ('publish_rate', 0.0), ('vfov', 300.0), ('camera_name', 3)]
     outcomes = []
     for name, value in cases:
-        future = client.call_async(SetParameters.Request(parameters=[_param(name, value)]))
+        future = client.call_async(SetParameters.Request(parameters=[parameter_msg(name, value)]))
         peer.spin_until(future.done, what=f'set {name}')
         result = future.result().results[0]
         outcomes.append((name, value, result.successful, result.reason))
@@ -357,7 +314,7 @@ def test_bad_parameters_through_the_node_never_stop_it(peer, start_node):
     good = dict(hfov=121, vfov=69.0, dfov=0.0, projection='auto', width=320, height=180, balance=0.0,
                 fov_scale=1.0, interpolation=1, rectify=True)
     atomic = peer.node.create_client(SetParametersAtomically, '/zeroshot_calib/set_parameters_atomically')
-    future = atomic.call_async(SetParametersAtomically.Request(parameters=[_param(k, v) for k, v in good.items()]))
+    future = atomic.call_async(SetParametersAtomically.Request(parameters=[parameter_msg(k, v) for k, v in good.items()]))
     peer.spin_until(future.done, what='set_parameters_atomically')
     assert future.result().result.successful, future.result().result.reason
     n = len(rects)
@@ -432,7 +389,7 @@ def test_frames_stay_paired_with_their_calibration_through_changes_restarts_and_
 
     def set_params(**params):  # atomically: one calibration per step, none in between
         future = client.call_async(SetParametersAtomically.Request(
-            parameters=[_param(k, v) for k, v in params.items()]))
+            parameters=[parameter_msg(k, v) for k, v in params.items()]))
         peer.spin_until(future.done, what='set_parameters_atomically')
         assert future.result().result.successful, future.result().result.reason
 

@@ -45,7 +45,7 @@ from sensor_msgs.srv import SetCameraInfo
 
 from .core.calibration_file import (DISTORTION_MODELS, CalibrationFileError, CameraCalibration,
                                     resolve_camera_info_url, solution_summary, summary_text)
-from .core.image_frames import ENCODINGS, ActiveCalibration, FrameSkipped, image_array
+from .core.image_frames import ActiveCalibration, FrameSkipped, image_array
 from .core.rectify import INTERPOLATIONS
 from .core.solver import PROJECTION_CHOICES, NoConvergence, solve_zero_shot
 from .core.presets import spec_with_preset
