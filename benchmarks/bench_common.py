@@ -338,7 +338,7 @@ def run_sub(args):
 
     import rclpy
     import rclpy.executors
-    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rclpy.parameter import Parameter
     from rcl_interfaces.srv import SetParameters
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import CameraInfo, Image
@@ -404,15 +404,7 @@ def run_sub(args):
         rclpy.try_shutdown()  # ends spin()
 
     def set_parameter(name, value):
-        param = Parameter(name=name)
-        if isinstance(value, bool):
-            param.value = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value)
-        elif isinstance(value, int):
-            param.value = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
-        elif isinstance(value, float):
-            param.value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
-        else:
-            param.value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=str(value))
+        param = Parameter(name, value=value).to_parameter_msg()  # rclpy infers the type
         if not client.wait_for_service(timeout_sec=10.0):
             write(f'SETDONE {name} 0 0 0 no-service\n')
             return
