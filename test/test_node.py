@@ -53,7 +53,7 @@ def test_camera_info_from_integer_command_line_parameters(peer, start_node):
     stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in infos[-3:]]
     assert stamps[0] < stamps[1] < stamps[2]
     assert infos[-1].header.frame_id == 'camera'
-    assert 'f         875.9867 px' in node.log  # the start-up block
+    peer.spin_until(lambda: 'f         875.9867 px' in node.log, timeout=5, what='the start-up block in the log')
 
 
 def test_late_joiner_gets_camera_info(peer, start_node):
@@ -134,12 +134,13 @@ def test_set_camera_info_is_persisted_and_reloaded(peer, start_node, tmp_path):
     response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=bad))
     assert not response.success and 'finite' in response.status_message
     node.stop()
-    # Restart: the file now takes precedence over the spec.
-    infos.clear()
+    # Restart: the file now takes precedence over the spec. Wait for the new process to say so
+    # (which also drains what the first process sent), then for its CameraInfo.
     restarted = start_node(*W1_ARGS, '-p', f'camera_info_url:={url}', name='restarted')
-    peer.spin_until(lambda: infos and infos[-1].k[0] == 880.0, what='camera_info from the saved file')
-    assert list(infos[-1].p[:3]) == [700.0, 0.0, 955.0]
-    assert 'calibration loaded from' in restarted.log
+    peer.spin_until(lambda: 'calibration loaded from' in restarted.log, what='the restarted node loading the file')
+    infos.clear()
+    peer.spin_until(lambda: infos, what='camera_info of the restarted node')
+    assert infos[-1].k[0] == 880.0 and list(infos[-1].p[:3]) == [700.0, 0.0, 955.0]
 
 
 def test_rectified_stream_keeps_stamps_and_straightens_lines(peer, start_node):
@@ -214,7 +215,7 @@ def test_bad_frames_are_skipped_counted_and_survived(peer, start_node):
     assert diagnostics_value(diagnostics, 'frames_skipped_encoding') == '1'
     assert diagnostics_value(diagnostics, 'frames_skipped_aspect') == '1'
     assert node.alive()
-    assert "encoding 'bayer_rggb8'" in node.log
+    peer.spin_until(lambda: "encoding 'bayer_rggb8'" in node.log, timeout=5, what='the encoding warning')
     # Same aspect, half size: scaled intrinsics, maps of its own.
     half_info = next(m for m in infos if m.header.stamp.sec == 2006)
     full_info = next(m for m in infos if m.header.stamp.sec == 2005)
