@@ -101,6 +101,14 @@ class Peer:
         self.node.create_subscription(msg_type, topic, received.append, qos_profile)
         return received
 
+    def image_publisher(self, qos_profile, topic='image_raw'):
+        """A publisher on ``topic`` once the node subscribes to it, after the node had time to
+        match its QoS to this publisher's (it checks once a second)."""
+        pub = self.node.create_publisher(Image, topic, qos_profile)
+        self.spin_until(lambda: pub.get_subscription_count() > 0, what=f'the node subscribing to {topic}')
+        self.spin_for(1.5)
+        return pub
+
     def call(self, srv_type, name, request, timeout=20.0):
         client = self.node.create_client(srv_type, name)
         self.spin_until(lambda: client.service_is_ready(), timeout, f'service {name}')

@@ -154,9 +154,7 @@ def test_rectified_stream_keeps_stamps_and_straightens_lines(peer, start_node):
     reliable = qos(ReliabilityPolicy.RELIABLE)
     rects = peer.collect(Image, 'image_rect', reliable)
     infos = peer.collect(CameraInfo, 'camera_info', reliable)
-    pub = peer.node.create_publisher(Image, 'image_raw', reliable)
-    peer.spin_until(lambda: pub.get_subscription_count() > 0, what='node subscribing to image_raw')
-    peer.spin_for(1.5)  # let the node match the publisher's QoS
+    pub = peer.image_publisher(reliable)
     sent = []
     for i in range(5):
         msg = frame(image, 'mono8', 1000 + i)
@@ -190,9 +188,7 @@ def test_bad_frames_are_skipped_counted_and_survived(peer, start_node):
     rects = peer.collect(Image, 'image_rect', reliable)
     infos = peer.collect(CameraInfo, 'camera_info', reliable)
     diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
-    pub = peer.node.create_publisher(Image, 'image_raw', reliable)
-    peer.spin_until(lambda: pub.get_subscription_count() > 0, what='node subscribing')
-    peer.spin_for(1.5)
+    pub = peer.image_publisher(reliable)
     good = np.full((360, 640, 3), 90, np.uint8)
     bayer = frame(np.zeros((360, 640), np.uint8), 'bayer_rggb8', 2000)
     wrong_aspect = frame(np.zeros((480, 640, 3), np.uint8), 'bgr8', 2001)
@@ -235,11 +231,9 @@ def test_every_supported_encoding_is_rectified(peer, start_node, encoding, dtype
                '-p', 'rectify:=true', '-p', 'interpolation:=0')
     reliable = qos(ReliabilityPolicy.RELIABLE)
     rects = peer.collect(Image, 'image_rect', reliable)
-    pub = peer.node.create_publisher(Image, 'image_raw', reliable)
-    peer.spin_until(lambda: pub.get_subscription_count() > 0, what='node subscribing')
+    pub = peer.image_publisher(reliable)
     shape = (90, 160) if channels == 1 else (90, 160, channels)
     array = np.full(shape, 300 if dtype != np.uint8 else 200, dtype)
-    peer.spin_for(1.5)
     pub.publish(frame(array, encoding, 3000))
     peer.spin_until(lambda: rects, what='image_rect')
     rect = rects[0]

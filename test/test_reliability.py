@@ -338,9 +338,7 @@ def test_more_malformed_frames_are_skipped_counted_and_survived(peer, start_node
     rects = peer.collect(Image, 'image_rect', reliable)
     infos = peer.collect(CameraInfo, 'camera_info', reliable)
     diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
-    pub = peer.node.create_publisher(Image, 'image_raw', reliable)
-    peer.spin_until(lambda: pub.get_subscription_count() > 0, what='node subscribing')
-    peer.spin_for(1.5)
+    pub = peer.image_publisher(reliable)
     big_endian = image_msg(np.full((180, 320), 0x1234, '>u2'), 'mono16', 10)
     big_endian.is_bigendian = 1
     odd_step = image_msg(np.zeros((180, 320), np.uint16), 'mono16', 11)
