@@ -19,7 +19,7 @@ def generate_launch_description():
                                   'hero9_w1.yaml')
     return LaunchDescription([
         DeclareLaunchArgument('params_file', default_value=default_params,
-                              description='ROS parameters file of the camera (zeroshot_calib: ros__parameters)'),
+                              description='ROS parameters file of the camera (/**/zeroshot_calib: ros__parameters:)'),
         DeclareLaunchArgument('namespace', default_value='camera', description='namespace of the topics'),
         DeclareLaunchArgument('image', default_value='image_raw',
                               description='raw image topic to pair CameraInfo with / rectify'),

@@ -49,7 +49,10 @@ class NodeProcess:
             pytest.fail(f'{NODE_EXECUTABLE} is missing: build first (make build)')
         self.log_path = tmp_path / f'{name}.log'
         self._log = open(self.log_path, 'w')
-        self.process = subprocess.Popen([str(NODE_EXECUTABLE), *args], env=ros_environment(domain_id),
+        env = ros_environment(domain_id)
+        # camera_info_manager's default URL is under $ROS_HOME: never the user's ~/.ros
+        env['ROS_HOME'] = str(tmp_path / 'ros_home')
+        self.process = subprocess.Popen([str(NODE_EXECUTABLE), *args], env=env,
                                         stdout=self._log, stderr=subprocess.STDOUT, cwd=str(REPO))
 
     @property

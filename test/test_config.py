@@ -16,15 +16,16 @@ PARAMS_FILES = sorted(CONFIG.glob('*.yaml'))
 @pytest.mark.parametrize('path', PARAMS_FILES, ids=[p.name for p in PARAMS_FILES])
 def test_params_files_are_standard_and_solve(path):
     data = yaml.safe_load(path.read_text())
-    assert list(data) == ['zeroshot_calib'] and list(data['zeroshot_calib']) == ['ros__parameters']
-    p = data['zeroshot_calib']['ros__parameters']
+    # rcl's wildcard: the node named zeroshot_calib in any namespace (a launch file always sets one)
+    assert list(data) == ['/**/zeroshot_calib'] and list(data['/**/zeroshot_calib']) == ['ros__parameters']
+    p = data['/**/zeroshot_calib']['ros__parameters']
     fovs = {k: (p.get(k) or None) for k in ('hfov', 'vfov', 'dfov')}
     solution = solve_zero_shot(CameraSpec(p['width'], p['height'], **fovs), p.get('projection', 'auto'))
     assert solution.f > 0
 
 
 def test_hero9_params_file_is_the_papers_camera():
-    p = yaml.safe_load((CONFIG / 'hero9_w1.yaml').read_text())['zeroshot_calib']['ros__parameters']
+    p = yaml.safe_load((CONFIG / 'hero9_w1.yaml').read_text())['/**/zeroshot_calib']['ros__parameters']
     assert (p['width'], p['height'], p['hfov'], p['vfov']) == (1920, 1080, 118, 69)
 
 

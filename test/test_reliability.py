@@ -226,7 +226,7 @@ def test_for_size_gives_scaled_calibrations_or_skips(small_camera, sizes):
         assert cal.P[0, 0] == pytest.approx(calibration.P[0, 0] * width / 64)
         assert rectifier.size == (width, height) and rectifier.map1.shape == (height, width, 2)
         assert active.for_size(width, height)[1] is rectifier  # built once
-        assert len(active._sizes) <= 4
+        assert len(active._rectifiers) <= 4
     assert active.calibration is calibration and active.generation == 3
 
 
@@ -244,13 +244,14 @@ def test_for_size_builds_once_when_asked_from_two_threads(small_camera):
     assert active.prepare() is active and active.prepared
 
 
-def test_singular_rectified_camera_is_rejected_before_maps(small_camera):
+def test_singular_rectified_camera_is_rejected_before_maps_whatever_rectify_is(small_camera):
     calibration, camera = small_camera
     bad = CameraCalibration(64, 36, calibration.K, calibration.distortion_model, calibration.D,
                             np.eye(3), np.zeros((3, 4)))
-    with pytest.raises(ValueError):
-        ActiveCalibration(bad, bad.camera(), 'set_camera_info', rectify=True, build_maps=False)
-    ActiveCalibration(bad, bad.camera(), 'set_camera_info', rectify=False)  # no maps: fine
+    # whatever rectify is: a calibration adopted with rectify off must still work after it is turned on
+    for rectify in (True, False):
+        with pytest.raises(ValueError, match='P = .* is invalid'):
+            ActiveCalibration(bad, bad.camera(), 'set_camera_info', rectify=rectify, build_maps=False)
 
 
 # --- through the node ------------------------------------------------------------------------------

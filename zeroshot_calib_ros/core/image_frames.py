@@ -9,7 +9,10 @@ whole, so every frame sees one consistent calibration. Its maps can be built on 
 """
 from __future__ import annotations
 
+import dataclasses
+import os
 import threading
+import time
 from typing import Dict, Optional, Tuple
 
 import numpy as np
@@ -20,22 +23,77 @@ from .rectify import Rectifier, new_camera_matrix
 
 ENCODINGS: Dict[str, Tuple[np.dtype, int]] = {
     'mono8': (np.dtype(np.uint8), 1), 'mono16': (np.dtype(np.uint16), 1),
-    '16UC1': (np.dtype(np.uint16), 1), '32FC1': (np.dtype(np.float32), 1),
     'rgb8': (np.dtype(np.uint8), 3), 'bgr8': (np.dtype(np.uint8), 3),
     'rgba8': (np.dtype(np.uint8), 4), 'bgra8': (np.dtype(np.uint8), 4),
+    'rgb16': (np.dtype(np.uint16), 3), 'bgr16': (np.dtype(np.uint16), 3),
+    # generic encodings, what cv_bridge produces for images that are not colour or mono
+    '8UC1': (np.dtype(np.uint8), 1), '8UC3': (np.dtype(np.uint8), 3), '8UC4': (np.dtype(np.uint8), 4),
+    '16UC1': (np.dtype(np.uint16), 1), '16UC3': (np.dtype(np.uint16), 3),
+    '32FC1': (np.dtype(np.float32), 1),  # depth in metres: rectified with a NaN border (Rectifier)
 }
 """sensor_msgs/Image encodings that can be rectified: element type and channels."""
 
-_MAX_SIZES_CACHED = 4
-
-
 class FrameSkipped(ValueError):
     """A frame that cannot be processed; ``reason`` is the counter it is reported under:
-    'encoding', 'aspect' or 'malformed'."""
+    'encoding', 'aspect', 'malformed', 'maps_pending' (maps of a new size not built yet),
+    'maps_budget' (maps of that size would not fit max_map_memory_mb), 'binning_roi'."""
 
     def __init__(self, reason: str, message: str):
         super().__init__(message)
         self.reason = reason
+
+
+MAP_BYTES_PER_PIXEL = 6
+"""Memory of one pixel's rectification maps: CV_16SC2 (4 bytes) + CV_16UC1 table (2 bytes)."""
+
+_MAX_SIZES_CACHED = 4
+
+
+def default_map_budget_mb() -> int:
+    """The default max_map_memory_mb: an eighth of the machine's memory (3 GiB on 24 GiB: the maps
+    of 500 megapixels), so that no frame size or parameter can make the node take the machine."""
+    try:
+        total = os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES')
+    except (ValueError, OSError, AttributeError):  # not on Linux
+        total = 8 * 2**30
+    return max(64, int(total // 8 // 2**20))
+
+
+def map_bytes(width: int, height: int) -> int:
+    """Memory the rectification maps of a width x height image take."""
+    return int(width) * int(height) * MAP_BYTES_PER_PIXEL
+
+
+class MapBudgetExceeded(ValueError):
+    """Rectification maps that would not fit the memory budget (the message says how much)."""
+
+
+def check_map_budget(width: int, height: int, budget_bytes: Optional[int], what: str = 'rectification maps'):
+    """Raise MapBudgetExceeded unless the maps of a width x height image fit ``budget_bytes``."""
+    need = map_bytes(width, height)
+    if budget_bytes is not None and need > budget_bytes:
+        raise MapBudgetExceeded(f'{what} of {width}x{height} need {need / 2**20:.0f} MiB, more than '
+                                f'max_map_memory_mb = {budget_bytes / 2**20:.0f}: allowed: at most '
+                                f'{budget_bytes // MAP_BYTES_PER_PIXEL} pixels (raise max_map_memory_mb '
+                                'or turn rectify off)')
+
+
+def check_frame(width: int, height: int, step: int, encoding: str, nbytes: int):
+    """Raise FrameSkipped('malformed') unless a message's fields describe the bytes it carries.
+
+    Every frame is checked, whatever rectify is: a CameraInfo goes out with each frame, and none
+    may describe an image the message does not contain. Encodings that cannot be rectified
+    (Bayer, YUV) still get their CameraInfo; for them only what holds for every encoding (at
+    least one byte per pixel) is checked."""
+    if width <= 0 or height <= 0:
+        raise FrameSkipped('malformed', f'image size {width}x{height} is empty')
+    known = ENCODINGS.get(encoding)
+    row = width * (known[1] * known[0].itemsize if known else 1)
+    if step < row:
+        raise FrameSkipped('malformed', f'step {step} is shorter than a row of {width} pixels of '
+                           f'{encoding!r} ({row} bytes)')
+    if nbytes != step * height:
+        raise FrameSkipped('malformed', f'data has {nbytes} bytes, step x height is {step * height}')
 
 
 def image_array(data, width: int, height: int, step: int, encoding: str,
@@ -68,57 +126,71 @@ class ActiveCalibration:
     ``calibration`` is the ROS record (K, D, R, P) at the configured size; ``camera`` is the model
     the rectification maps are computed from (the exact zero-shot model when solved from a spec,
     the record's own model when loaded from a file or set_camera_info). Frames of another size
-    with the same aspect ratio get scaled intrinsics and their own maps, built once.
+    with the same aspect ratio get scaled intrinsics and maps of their own.
 
-    ``build_maps=True`` builds the maps of the configured size in the constructor (not on frame
-    one); with ``build_maps=False`` they are built by ``prepare()`` (e.g. on a worker thread) or
-    on first use. ``for_size`` is thread-safe: a frame asking for maps being built waits for them.
-    With rectification on, a rectified camera P that cannot be inverted raises ValueError here,
-    before any map is built.
+    Maps are built by ``prepare()`` (configured size) or ``build_maps(w, h)`` (another size),
+    meant for a worker thread; ``rectifier_for`` only looks up what is built, so a frame never
+    waits for a build. ``for_size`` builds on demand (for scripts and benchmarks).
+    ``map_budget_bytes`` bounds the memory of all cached maps: the configured size must fit it
+    (checked here, before anyone is told the calibration was adopted); other sizes evict the
+    least recently used ones and are refused when they cannot fit.
+    A rectified camera P that cannot be inverted raises ValueError here, before any map is built.
     """
 
     def __init__(self, calibration: CameraCalibration, camera: CameraModel, source: str,
                  generation: int = 0, rectify: bool = False, interpolation: int = 1,
-                 build_maps: bool = True):
+                 build_maps: bool = True, map_budget_bytes: Optional[int] = None):
         self.calibration = calibration
         self.camera = camera
         self.source = source
         self.generation = generation
         self.rectify_enabled = rectify
         self.interpolation = interpolation
-        self._sizes: Dict[Tuple[int, int], Tuple[CameraCalibration, Optional[Rectifier]]] = {}
+        self.map_budget_bytes = map_budget_bytes
+        self._calibrations: Dict[Tuple[int, int], CameraCalibration] = {
+            (calibration.width, calibration.height): calibration}
+        self._rectifiers: Dict[Tuple[int, int], Rectifier] = {}
+        self._last_used: Dict[Tuple[int, int], float] = {}
         self._lock = threading.Lock()
+        P = np.asarray(calibration.P, dtype=float)[:3, :3]
+        if not (np.all(np.isfinite(P)) and abs(np.linalg.det(P)) > 0 and P[0, 0] > 0 and P[1, 1] > 0):
+            raise ValueError(f'P = {np.asarray(calibration.P).tolist()} is invalid: allowed: a projection '
+                             'matrix whose left 3x3 is invertible with positive focal lengths')
         if rectify:
-            np.linalg.inv(np.asarray(calibration.P, dtype=float)[:3, :3])  # LinAlgError is a ValueError
+            check_map_budget(calibration.width, calibration.height, map_budget_bytes)
         if build_maps:
             self.prepare()  # maps at start, not on frame one
 
     @property
+    def size(self) -> Tuple[int, int]:
+        return self.calibration.width, self.calibration.height
+
+    @property
     def prepared(self) -> bool:
         """Whether the configured size's maps (if rectifying) are built."""
-        return (self.calibration.width, self.calibration.height) in self._sizes
+        return not self.rectify_enabled or self.size in self._rectifiers
 
     def prepare(self, map_threads: Optional[int] = None) -> 'ActiveCalibration':
-        """Build the configured size's calibration and maps now (returns self); ``map_threads``
-        threads build the maps (default: one per CPU; 1 leaves the other cores to a stream)."""
-        self.for_size(self.calibration.width, self.calibration.height, map_threads)
+        """Build the configured size's maps now, if rectifying (returns self); ``map_threads``
+        threads build them (default: one per CPU; 1 leaves the other cores to a stream)."""
+        if self.rectify_enabled:
+            self.build_maps(*self.size, map_threads)
         return self
 
     def with_rectification(self, balance: float, fov_scale: float,
                            build_maps: bool = True) -> 'ActiveCalibration':
         """The same calibration with P chosen by ``balance`` and ``fov_scale`` (new object)."""
         P = np.hstack([new_camera_matrix(self.camera, balance, fov_scale), np.zeros((3, 1))])
-        c = self.calibration
-        record = CameraCalibration(c.width, c.height, c.K, c.distortion_model, c.D, c.R, P, c.camera_name)
+        record = dataclasses.replace(self.calibration, P=P)  # keeps every other field
         return ActiveCalibration(record, self.camera, self.source, self.generation + 1,
-                                 self.rectify_enabled, self.interpolation, build_maps=build_maps)
+                                 self.rectify_enabled, self.interpolation, build_maps=build_maps,
+                                 map_budget_bytes=self.map_budget_bytes)
 
-    def for_size(self, width: int, height: int,
-                 map_threads: Optional[int] = None) -> Tuple[CameraCalibration, Optional[Rectifier]]:
-        """(calibration, rectifier or None) for frames of ``width`` x ``height`` (maps built on
-        first use, by ``map_threads`` threads)."""
+    def calibration_for(self, width: int, height: int) -> CameraCalibration:
+        """The calibration of frames of ``width`` x ``height`` (cheap: no maps); FrameSkipped for
+        a size no calibration describes."""
         key = (width, height)
-        cached = self._sizes.get(key)
+        cached = self._calibrations.get(key)
         if cached is not None:
             return cached
         base = self.calibration
@@ -127,21 +199,70 @@ class ActiveCalibration:
         if width * base.height != height * base.width:
             raise FrameSkipped('aspect', f'image {width}x{height} does not have the aspect ratio of '
                                f'the calibration ({base.width}x{base.height})')
+        calibration = base.scaled(width, height)
+        with self._lock:
+            calibrations = dict(self._calibrations)  # readers without the lock see old or new
+            if len(calibrations) > 2 * _MAX_SIZES_CACHED:
+                calibrations = {k: v for k, v in calibrations.items() if k == self.size}
+            calibrations[key] = calibration
+            self._calibrations = calibrations
+        return calibration
+
+    def rectifier_for(self, width: int, height: int) -> Optional[Rectifier]:
+        """The built rectifier of that size, or None (not rectifying, or not built yet)."""
+        rectifier = self._rectifiers.get((width, height))
+        if rectifier is not None:
+            self._last_used[(width, height)] = time.monotonic()
+        return rectifier
+
+    def build_maps(self, width: int, height: int, map_threads: Optional[int] = None) -> Rectifier:
+        """Build (once) and cache the rectifier of frames of ``width`` x ``height``. Another size's
+        maps evict the least recently used sizes to fit ``map_budget_bytes``; MapBudgetExceeded
+        when they cannot fit beside the configured size's."""
+        key = (width, height)
+        calibration = self.calibration_for(width, height)
         with self._lock:  # one build per size, even when a frame and a worker ask at once
-            cached = self._sizes.get(key)
+            cached = self._rectifiers.get(key)
             if cached is not None:
                 return cached
-            if key == (base.width, base.height):
-                calibration, camera = base, self.camera
-            else:
-                calibration, camera = base.scaled(width, height), self.camera.scaled(width, height)
-            rectifier = None
-            if self.rectify_enabled:
-                rectifier = Rectifier(camera, interpolation=self.interpolation, P=calibration.P,
-                                      map_threads=map_threads)
-            sizes = dict(self._sizes)  # readers without the lock see the old or the new dict
-            if len(sizes) >= _MAX_SIZES_CACHED:
-                sizes.pop(next(k for k in sizes if k != (base.width, base.height)))
-            sizes[key] = (calibration, rectifier)
-            self._sizes = sizes
-            return calibration, rectifier
+            budget = self.map_budget_bytes
+            if key != self.size and budget is not None:
+                budget -= map_bytes(*self.size)
+            check_map_budget(width, height, budget)
+            camera = self.camera if key == self.size else self.camera.scaled(width, height)
+            rectifier = Rectifier(camera, interpolation=self.interpolation, P=calibration.P,
+                                  map_threads=map_threads)
+            rectifiers = dict(self._rectifiers)
+            others = sorted((k for k in rectifiers if k != self.size), key=lambda k: self._last_used.get(k, 0.0))
+            while others and (len(rectifiers) >= _MAX_SIZES_CACHED or (
+                    self.map_budget_bytes is not None and
+                    sum(map_bytes(*k) for k in rectifiers) + map_bytes(width, height) > self.map_budget_bytes)):
+                rectifiers.pop(others.pop(0))
+            rectifiers[key] = rectifier
+            self._last_used[key] = time.monotonic()
+            self._rectifiers = rectifiers
+            return rectifier
+
+    def release_unused(self, idle_seconds: float) -> list:
+        """Drop the maps of other sizes than the configured one unused for ``idle_seconds``
+        (one odd frame must not pin its maps' memory); returns the sizes dropped."""
+        now = time.monotonic()
+        with self._lock:
+            stale = [k for k in self._rectifiers
+                     if k != self.size and now - self._last_used.get(k, 0.0) > idle_seconds]
+            if stale:
+                self._rectifiers = {k: v for k, v in self._rectifiers.items() if k not in stale}
+        return stale
+
+    @property
+    def map_memory_bytes(self) -> int:
+        return sum(map_bytes(*k) for k in self._rectifiers)
+
+    def for_size(self, width: int, height: int,
+                 map_threads: Optional[int] = None) -> Tuple[CameraCalibration, Optional[Rectifier]]:
+        """(calibration, rectifier or None) for frames of ``width`` x ``height``, building the
+        maps now if needed (scripts and benchmarks; the node never builds on a frame)."""
+        calibration = self.calibration_for(width, height)
+        if not self.rectify_enabled:
+            return calibration, None
+        return calibration, self.build_maps(width, height, map_threads)

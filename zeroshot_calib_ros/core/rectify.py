@@ -142,5 +142,8 @@ class Rectifier:
         h, w = image.shape[:2]
         if (w, h) != self.size:
             raise ValueError(f'image is {w}x{h}, the rectifier was built for {self.size[0]}x{self.size[1]}')
+        # Unseen pixels of a float image (depth) are NaN, as image_proc / image_geometry fill them:
+        # a 0 there would read as a valid depth and be blended into the edge pixels.
+        border = float('nan') if image.dtype.kind == 'f' else 0
         return cv2.remap(image, self.map1, self.map2, self.interpolation, dst=out,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=border)
