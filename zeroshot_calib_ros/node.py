@@ -499,7 +499,7 @@ class ZeroShotCalibNode(Node):
             f'{qos_text(self._reliability, "transient local")}): with every {self._image_sub.topic_name} frame '
             f'(its header), at {self._rate:g} Hz while {self._image_sub.topic_name} has no publisher',
             f'  publishes  {rect}',
-            f'  subscribes {self._image_sub.topic_name} (sensor_msgs/Image, {qos_text(self._image_reliability)})',
+            f'  subscribes {self._image_sub.topic_name} (sensor_msgs/Image, {qos_text(self._image_reliability, depth=10)})',
             f'  service    {self._set_camera_info_srv.srv_name} (sensor_msgs/srv/SetCameraInfo)',
             f'  publishes  {self._diagnostics_pub.topic_name} (diagnostic_msgs/DiagnosticArray, 1 Hz)',
             f'  rectify    {"on" if self._active.rectify_enabled else "off"}'
@@ -513,8 +513,10 @@ class ZeroShotCalibNode(Node):
                               durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self._info_pub = self.create_publisher(CameraInfo, 'camera_info', info_qos)
         self._sync_rect_publisher()
+        # depth 10 on the way in: a frame that takes long to arrive (a 30 MB one takes ~0.3 s
+        # through DDS) must not push the frames queued behind it out of the reader's history
         self._image_sub = self.create_subscription(Image, 'image_raw', self._on_image,
-                                                   self._image_qos(self._image_reliability))
+                                                   self._image_qos(self._image_reliability, depth=10))
 
     def _sync_rect_publisher(self):
         """image_rect is advertised only while rectify is on (it would collide with image_proc's)."""
@@ -525,8 +527,8 @@ class ZeroShotCalibNode(Node):
             self._rect_pub = None
 
     @staticmethod
-    def _image_qos(reliability):
-        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=reliability,
+    def _image_qos(reliability, depth=5):
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability,
                           durability=DurabilityPolicy.VOLATILE)
 
     # --- publishing -----------------------------------------------------------------------

@@ -151,6 +151,7 @@ class ActiveCalibration:
             (calibration.width, calibration.height): calibration}
         self._rectifiers: Dict[Tuple[int, int], Rectifier] = {}
         self._last_used: Dict[Tuple[int, int], float] = {}
+        self._building: Dict[Tuple[int, int], threading.Event] = {}
         self._lock = threading.Lock()
         P = np.asarray(calibration.P, dtype=float)[:3, :3]
         if not (np.all(np.isfinite(P)) and abs(np.linalg.det(P)) > 0 and P[0, 0] > 0 and P[1, 1] > 0):
@@ -218,30 +219,43 @@ class ActiveCalibration:
     def build_maps(self, width: int, height: int, map_threads: Optional[int] = None) -> Rectifier:
         """Build (once) and cache the rectifier of frames of ``width`` x ``height``. Another size's
         maps evict the least recently used sizes to fit ``map_budget_bytes``; MapBudgetExceeded
-        when they cannot fit beside the configured size's."""
+        when they cannot fit beside the configured size's. The maps are built outside the lock,
+        so frames and housekeeping never wait for a build (seconds for a very large size)."""
         key = (width, height)
         calibration = self.calibration_for(width, height)
-        with self._lock:  # one build per size, even when a frame and a worker ask at once
-            cached = self._rectifiers.get(key)
-            if cached is not None:
-                return cached
-            budget = self.map_budget_bytes
-            if key != self.size and budget is not None:
-                budget -= map_bytes(*self.size)
-            check_map_budget(width, height, budget)
+        while True:
+            with self._lock:
+                cached = self._rectifiers.get(key)
+                if cached is not None:
+                    return cached
+                budget = self.map_budget_bytes
+                if key != self.size and budget is not None:
+                    budget -= map_bytes(*self.size)
+                check_map_budget(width, height, budget)
+                building = self._building.get(key)
+                if building is None:  # this thread builds it
+                    building = self._building[key] = threading.Event()
+                    break
+            building.wait()  # another thread builds it: take its result (or build if it failed)
+        try:
             camera = self.camera if key == self.size else self.camera.scaled(width, height)
             rectifier = Rectifier(camera, interpolation=self.interpolation, P=calibration.P,
                                   map_threads=map_threads)
-            rectifiers = dict(self._rectifiers)
-            others = sorted((k for k in rectifiers if k != self.size), key=lambda k: self._last_used.get(k, 0.0))
-            while others and (len(rectifiers) >= _MAX_SIZES_CACHED or (
-                    self.map_budget_bytes is not None and
-                    sum(map_bytes(*k) for k in rectifiers) + map_bytes(width, height) > self.map_budget_bytes)):
-                rectifiers.pop(others.pop(0))
-            rectifiers[key] = rectifier
-            self._last_used[key] = time.monotonic()
-            self._rectifiers = rectifiers
+            with self._lock:
+                rectifiers = dict(self._rectifiers)  # readers without the lock see old or new
+                others = sorted((k for k in rectifiers if k != self.size),
+                                key=lambda k: self._last_used.get(k, 0.0))
+                while others and (len(rectifiers) >= _MAX_SIZES_CACHED or (
+                        self.map_budget_bytes is not None and
+                        sum(map_bytes(*k) for k in rectifiers) + map_bytes(width, height) > self.map_budget_bytes)):
+                    rectifiers.pop(others.pop(0))
+                rectifiers[key] = rectifier
+                self._last_used[key] = time.monotonic()
+                self._rectifiers = rectifiers
             return rectifier
+        finally:
+            with self._lock:
+                self._building.pop(key).set()
 
     def release_unused(self, idle_seconds: float) -> list:
         """Drop the maps of other sizes than the configured one unused for ``idle_seconds``
