@@ -23,6 +23,7 @@ LSTAMP    := $(LIBS_VENV)/.stamp
 BSTAMP    := $(TOP)/build/.make-build.stamp
 PYTEST_ARGS ?=
 PARAMS    ?= $(TOP)/config/hero9_w1.yaml
+ARGS      ?=
 
 # --- environment of every ROS process started from here ------------------
 # (each only if the caller has not set it already)
@@ -86,8 +87,10 @@ test-ros: $(BSTAMP)
 test-jazzy-libs: $(LSTAMP)
 	cd $(TOP) && ZEROSHOT_ROS_FREE_ONLY=1 $(LIBS_VENV)/bin/python -m pytest -q test $(PYTEST_ARGS)
 
+# `make run PARAMS=config/c922.yaml ARGS='-p hfov:=118 -r __ns:=/front'`: what
+# `ros2 run zeroshot_calib_ros node --ros-args --params-file PARAMS ARGS` does with a system ROS.
 run: $(BSTAMP)
-	cd $(TOP) && $(ROS_ENV) $(PREFIX)/lib/$(PKG)/node --ros-args --params-file $(PARAMS)
+	cd $(TOP) && $(ROS_ENV) $(PREFIX)/lib/$(PKG)/node --ros-args --params-file $(PARAMS) $(ARGS)
 
 clean:
 	rm -rf $(TOP)/build $(TOP)/install $(TOP)/log $(TOP)/.pytest_cache \

@@ -1,8 +1,10 @@
 import os
+import shutil
 import sys
 from glob import glob
 
 from setuptools import find_packages, setup
+from setuptools.command.install import install as _install
 
 package_name = 'zeroshot_calib_ros'
 
@@ -47,6 +49,23 @@ def _colcon_style_install(argv):
     return False
 
 
+class install(_install):
+    """colcon's install, plus ``<prefix>/bin/zeroshot-calib``.
+
+    setup.cfg sends every script to lib/zeroshot_calib_ros/ (where `ros2 run` looks, and where
+    `node` must stay); the CLI also belongs on PATH after `source install/setup.bash`. colcon
+    puts <prefix>/bin on PATH when it exists, so the CLI's wrapper (same interpreter line) is
+    copied there. Only `zeroshot-calib`: never `node` (it would shadow Node.js)."""
+
+    def run(self):
+        super().run()
+        script = os.path.join(self.install_scripts, 'zeroshot-calib')
+        if os.path.basename(os.path.normpath(self.install_scripts)) == package_name and os.path.isfile(script):
+            bindir = os.path.join(self.install_base, 'bin')
+            os.makedirs(bindir, exist_ok=True)
+            shutil.copy2(script, os.path.join(bindir, 'zeroshot-calib'))
+
+
 console_scripts = ['zeroshot-calib = zeroshot_calib_ros.cli:main']
 if _colcon_style_install(sys.argv):
     console_scripts.append('node = zeroshot_calib_ros.node:main')
@@ -86,4 +105,5 @@ setup(
     entry_points={
         'console_scripts': console_scripts,
     },
+    cmdclass={'install': install},
 )

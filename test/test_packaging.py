@@ -8,6 +8,7 @@ it would shadow Node.js).
 """
 
 import configparser
+import json
 import os
 import shutil
 import subprocess
@@ -114,3 +115,21 @@ def test_package_xml(source_copy):
     assert maintainer is not None and maintainer.get('email') == 'maintainers@zeroshot-calib.dev'
     version = root.findtext('version')
     assert version and version == _setup_py_version(source_copy)
+
+
+def test_sourcing_install_setup_bash_puts_the_cli_on_path():
+    """README: `make build && source install/setup.bash && zeroshot-calib solve --preset
+    gopro_hero9_wide`, in a shell that has nothing of ours (no venv, no PYTHONPATH)."""
+    setup_bash = ROOT / 'install' / 'setup.bash'
+    assert setup_bash.is_file(), 'make build must produce install/setup.bash (colcon-bash)'
+    env = {'HOME': os.environ.get('HOME', '/root'), 'PATH': '/usr/local/bin:/usr/bin:/bin'}
+    done = subprocess.run(['bash', '-c', f'source {setup_bash} && command -v zeroshot-calib && '
+                           '{ command -v node | grep -c zeroshot || true; } && '
+                           'zeroshot-calib solve --preset gopro_hero9_wide --json'],
+                          env=env, capture_output=True, text=True, timeout=120, cwd='/')
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0] == str(ROOT / 'install' / 'zeroshot_calib_ros' / 'bin' / 'zeroshot-calib')
+    assert lines[1] == '0'  # `node` stays off PATH
+    result = json.loads(lines[2])
+    assert abs(result['f'] - 876.0) < 0.1  # the paper's Table 2, Hero9(W1)
