@@ -47,7 +47,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from sensor_msgs.srv import SetCameraInfo
 
 from .core.calibration_file import (DISTORTION_MODELS, CalibrationFileError, CameraCalibration,
-                                    resolve_camera_info_url, solution_summary, summary_text)
+                                    RegionOfInterest, resolve_camera_info_url, solution_summary, summary_text)
 from .core.fitting import FIT_WARNING_PX
 from .core.image_frames import (ActiveCalibration, FrameSkipped, check_frame, check_map_budget,
                                 default_map_budget_mb, image_array, map_bytes)
@@ -226,8 +226,11 @@ def solve_from_settings(settings: Settings, generation: int, build_maps: bool = 
 
 
 def _calibration_from_msg(msg: CameraInfo, camera_name: str) -> CameraCalibration:
+    roi = RegionOfInterest(int(msg.roi.x_offset), int(msg.roi.y_offset), int(msg.roi.height),
+                           int(msg.roi.width), bool(msg.roi.do_rectify))
     return CameraCalibration(int(msg.width), int(msg.height), np.array(msg.k), msg.distortion_model,
-                             np.array(msg.d), np.array(msg.r), np.array(msg.p), camera_name)
+                             np.array(msg.d), np.array(msg.r), np.array(msg.p), camera_name,
+                             int(msg.binning_x), int(msg.binning_y), roi)
 
 
 @dataclass
@@ -331,27 +334,30 @@ def _fill_camera_info(msg: CameraInfo, calibration: CameraCalibration):
     msg.r = calibration.R.ravel().tolist()
     msg.p = calibration.P.ravel().tolist()
     # as given (a file, set_camera_info); 0 and an all-zero roi mean the full image, unbinned
-    msg.binning_x = int(getattr(calibration, 'binning_x', 0))
-    msg.binning_y = int(getattr(calibration, 'binning_y', 0))
-    roi = getattr(calibration, 'roi', None)
-    if roi is not None:
-        msg.roi.x_offset, msg.roi.y_offset = int(roi.x_offset), int(roi.y_offset)
-        msg.roi.width, msg.roi.height = int(roi.width), int(roi.height)
-        msg.roi.do_rectify = bool(roi.do_rectify)
+    msg.binning_x, msg.binning_y = int(calibration.binning_x), int(calibration.binning_y)
+    roi = calibration.roi
+    msg.roi.x_offset, msg.roi.y_offset = int(roi.x_offset), int(roi.y_offset)
+    msg.roi.width, msg.roi.height = int(roi.width), int(roi.height)
+    msg.roi.do_rectify = bool(roi.do_rectify)
 
 
 def _binning_or_roi(calibration: CameraCalibration) -> str:
     """Why the node cannot rectify frames of this calibration itself ('' if it can)."""
-    binning = (getattr(calibration, 'binning_x', 0), getattr(calibration, 'binning_y', 0))
-    roi = getattr(calibration, 'roi', None)
-    partial_roi = roi is not None and (roi.x_offset or roi.y_offset or roi.width or roi.height) and \
+    roi = calibration.roi
+    partial_roi = not roi.is_full() and \
         (roi.x_offset, roi.y_offset, roi.width, roi.height) != (0, 0, calibration.width, calibration.height)
-    if any(b > 1 for b in binning) or partial_roi:
-        return (f'the calibration has binning {binning[0]}x{binning[1]} / roi {roi.width if roi else 0}x'
-                f'{roi.height if roi else 0}+{roi.x_offset if roi else 0}+{roi.y_offset if roi else 0}: '
-                'the node rectifies full, unbinned frames only (image_proc rectifies binned / ROI frames '
-                'from this CameraInfo)')
+    if calibration.binning_x > 1 or calibration.binning_y > 1 or partial_roi:
+        return (f'the calibration has binning {calibration.binning_x}x{calibration.binning_y} / roi '
+                f'{roi.width}x{roi.height}+{roi.x_offset}+{roi.y_offset}: the node rectifies full, unbinned '
+                'frames only (image_proc rectifies binned / ROI frames from this CameraInfo)')
     return ''
+
+
+def _binned_roi_size(calibration: CameraCalibration) -> Tuple[int, int]:
+    """The size of the frames a binned / ROI calibration describes, as image_geometry computes it."""
+    roi = calibration.roi
+    width, height = (calibration.width, calibration.height) if roi.is_full() else (roi.width, roi.height)
+    return width // max(1, calibration.binning_x), height // max(1, calibration.binning_y)
 
 
 class _AtomicParameterService(ParameterService):
@@ -445,7 +451,7 @@ class ZeroShotCalibNode(Node):
     def _initial_calibration(self, settings: Settings) -> ActiveCalibration:
         path = self._url_path
         self._file_state = f'none at {path} yet: set_camera_info will save there'
-        if path and os.path.isfile(path):
+        if os.path.isfile(path):
             try:
                 calibration = CameraCalibration.load(path)
                 active = ActiveCalibration(calibration, calibration.camera(), f'file {path}', 0,
@@ -557,7 +563,14 @@ class ZeroShotCalibNode(Node):
         try:
             # the same checks whatever rectify is: no CameraInfo for an image the message lacks
             check_frame(width, height, msg.step, msg.encoding, len(msg.data))
-            calibration = active.calibration_for(width, height)
+            if _binning_or_roi(active.calibration):
+                # CameraInfo as given (binning and roi tell consumers how the frame maps); no scaling
+                calibration = active.calibration
+                if (width, height) != _binned_roi_size(calibration):
+                    raise FrameSkipped('aspect', f'image {width}x{height} is not the {"x".join(map(str, _binned_roi_size(calibration)))} '
+                                       'that the calibration\'s binning and roi describe')
+            else:
+                calibration = active.calibration_for(width, height)
         except FrameSkipped as exc:
             self._skip(exc)
             return
