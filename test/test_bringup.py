@@ -61,6 +61,13 @@ def test_params_file_in_a_namespace_as_launch_ros_starts_it(peer, start_node, tm
     pub.publish(image_msg(texture, 'mono8', 5_000_000_000))
     peer.spin_until(lambda: rects, what='/front/image_rect')
     assert (rects[0].width, rects[0].height) == (p['width'], p['height'])
+    # the start-up block names what the node resolved, as `make run` shows it
+    for line in ['publishes  /front/camera_info (sensor_msgs/CameraInfo, reliable, transient local, depth 5)',
+                 'publishes  /front/image_rect (sensor_msgs/Image', 'subscribes /front/image_raw (sensor_msgs/Image',
+                 'service    /front/set_camera_info (sensor_msgs/srv/SetCameraInfo', 'rectify    on',
+                 f"at {p['publish_rate']:g} Hz while /front/image_raw has no publisher",
+                 f"calibration file: none at {tmp_path}/ros_home/camera_info/{p['camera_name']}.yaml yet"]:
+        assert line in node.log, line
     assert node.alive()
 
 

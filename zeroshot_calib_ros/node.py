@@ -497,16 +497,17 @@ class ZeroShotCalibNode(Node):
     def _interfaces_text(self) -> str:
         def qos_text(reliability, durability='volatile', depth=5):
             return f'{reliability.name.lower()}, {durability}, depth {depth}'
-        rect = (f'{self._rect_pub.topic_name} (sensor_msgs/Image, {qos_text(self._reliability)})'
-                if self._rect_pub else 'image_rect: not advertised (rectify: false)')
+        rect = (f'  publishes  {self._rect_pub.topic_name} (sensor_msgs/Image, {qos_text(self._reliability)})'
+                if self._rect_pub else f'  (no {self.resolve_topic_name("image_rect")}: rectify is false)')
         return '\n'.join([
             'interfaces (QoS reliability follows the image publisher, checked once a second):',
             f'  publishes  {self._info_pub.topic_name} (sensor_msgs/CameraInfo, '
             f'{qos_text(self._reliability, "transient local")}): with every {self._image_sub.topic_name} frame '
             f'(its header), at {self._rate:g} Hz while {self._image_sub.topic_name} has no publisher',
-            f'  publishes  {rect}',
+            rect,
             f'  subscribes {self._image_sub.topic_name} (sensor_msgs/Image, {qos_text(self._image_reliability, depth=10)})',
-            f'  service    {self._set_camera_info_srv.srv_name} (sensor_msgs/srv/SetCameraInfo)',
+            f'  service    {self.resolve_service_name(self._set_camera_info_srv.srv_name)} '
+            '(sensor_msgs/srv/SetCameraInfo, for cameracalibrator)',
             f'  publishes  {self._diagnostics_pub.topic_name} (diagnostic_msgs/DiagnosticArray, 1 Hz)',
             f'  rectify    {"on" if self._active.rectify_enabled else "off"}'
             f' (maps at most max_map_memory_mb = {self._map_budget})',
