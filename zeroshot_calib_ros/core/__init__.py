@@ -11,9 +11,10 @@ from .projections import PROJECTIONS, FisheyeProjection, get_projection
 from .camera_models import (CameraModel, KannalaBrandtCamera, PinholeCamera, PlumbBobCamera,
                             ZeroShotCamera, camera_from_calibration)
 from .solver import ZeroShotSolution, solve_zero_shot, NoConvergence
+from .camera_info_model import CameraInfoModel
 
 __all__ = [
     'CameraSpec', 'SpecError', 'PROJECTIONS', 'FisheyeProjection', 'get_projection',
     'CameraModel', 'KannalaBrandtCamera', 'PinholeCamera', 'PlumbBobCamera', 'ZeroShotCamera',
-    'camera_from_calibration', 'ZeroShotSolution', 'solve_zero_shot', 'NoConvergence',
+    'camera_from_calibration', 'ZeroShotSolution', 'solve_zero_shot', 'NoConvergence', 'CameraInfoModel',
 ]
