@@ -81,3 +81,305 @@ def test_errors_exit_2_with_one_line_and_no_traceback(args, message):
     assert run.stdout == ''
     assert len(run.stderr.strip().splitlines()) == 1 and message in run.stderr
     assert 'Traceback' not in run.stderr
+
+
+# -- hardening: each test below failed on the CLI before the change it covers --------------------
+
+HERO9 = 'w1,1920,1080,118,69,\n'  # the paper's Table 2: f = 876.0 px for the GoPro HERO9 (W1)
+
+
+def run_main(args, capsys):
+    """(exit status, stdout, stderr lines) of main(args) in-process; argparse exits included."""
+    try:
+        status = main(args)
+    except SystemExit as exc:
+        status = exc.code
+    captured = capsys.readouterr()
+    return status, captured.out, captured.err.strip().splitlines()
+
+
+def one_line_error(status, err, *words):
+    assert status == 2, err
+    assert len(err) == 1 and err[0].startswith('zeroshot-calib'), err
+    for word in words:
+        assert word in err[0], (word, err)
+
+
+def batch(tmp_path, text, *extra, encoding='utf-8'):
+    path = tmp_path / 'cams.csv'
+    path.write_bytes(text.encode(encoding) if isinstance(text, str) else text)
+    return ['solve', '--batch', str(path), *extra]
+
+
+def test_batch_misspelt_header_column_is_an_error_before_any_output(tmp_path, capsys):
+    status, out, err = run_main(batch(tmp_path, 'name,width,height,hfvo,vfov,dfov\n' + HERO9), capsys)
+    one_line_error(status, err, "'hfvo'", 'hfov', 'circle_fov')
+    assert out == ''
+
+
+@pytest.mark.parametrize('text', [
+    'name,width,height,hfov,vfov,dfov\n' + HERO9,
+    '\ufeffname,width,height,hfov,vfov,dfov\n' + HERO9,                     # UTF-8 BOM (Excel)
+    '# cameras\n\nname,width,height,hfov,vfov,dfov\n# the HERO9\n\n' + HERO9,  # comments, blanks
+    HERO9,                                                                   # no header: positional
+    '\ufeff' + HERO9,
+    'w1,1920.0,1080.0,118,69,\n',                                            # integral floats
+    'Name, Width ,height,hfov,vfov\r\nw1,1920,1080,118,69\r\n',              # case, spaces, CRLF
+    'width,height,hfov,vfov,name\n1920,1080,118,69,w1\n',                    # any column order
+])
+def test_batch_reads_headers_boms_comments_and_positional_rows(tmp_path, capsys, text):
+    status, out, err = run_main(batch(tmp_path, text), capsys)
+    assert status == 0, err
+    records = [json.loads(line) for line in out.splitlines()]
+    assert len(records) == 1 and records[0]['name'] == 'w1'
+    assert records[0]['f'] == pytest.approx(876.0, abs=0.05)
+
+
+def test_batch_row_errors_non_integral_size_and_extra_cells(tmp_path, capsys):
+    text = ('name,width,height,hfov,vfov,dfov\n'
+            'half,1920.5,1080,118,69,\n'
+            'extra,1920,1080,118,69,,7\n' + HERO9)
+    status, out, err = run_main(batch(tmp_path, text), capsys)
+    assert status == 1
+    half, extra, ok = [json.loads(line) for line in out.splitlines()]
+    assert 'width = 1920.5' in half['error'] and half['row'] == 1 and half['line'] == 2
+    assert '7 cells' in extra['error'] and '6 columns' in extra['error']
+    assert ok['f'] == pytest.approx(876.0, abs=0.05)
+
+
+@pytest.mark.parametrize('text', ['', '\n\n', '# only a comment\n', '\ufeff', 'name,width,height,hfov\n'])
+def test_batch_without_camera_rows_is_an_error(tmp_path, capsys, text):
+    status, out, err = run_main(batch(tmp_path, text), capsys)
+    one_line_error(status, err, 'no camera rows')
+    assert out == ''
+
+
+def test_batch_not_utf8_is_one_line(tmp_path, capsys):
+    status, out, err = run_main(batch(tmp_path, b'name,width\n\xff\xfe,1\n'), capsys)
+    one_line_error(status, err, 'UTF-8')
+
+
+def test_batch_yaml_names_stay_inside_the_directory(tmp_path, capsys):
+    text = ('name,width,height,hfov,vfov\n'
+            '../../etc/evil,1920,1080,118,69\n'
+            f'{tmp_path / "abs"},1920,1080,118,69\n'
+            f'{"x" * 300},1920,1080,118,69\n'   # used to abort the whole batch
+            f'{"y" * 200},1920,1080,118,69\n'   # the longest camera_name: a shortened file name
+            'w1,1920,1080,118,69\n'
+            'w1,1280,720,63.1,\n'              # the same file: an error, not an overwrite
+            'Cam_1,1920,1080,118,69\n'
+            'CAM_1,1920,1080,118,69\n'          # the same file on a case-insensitive file system
+            'last,1920,1080,118,69\n')
+    out_dir = tmp_path / 'a' / 'out'  # ../../etc/evil would escape to tmp_path / 'etc'
+    status, out, err = run_main(batch(tmp_path, text, '--yaml-dir', str(out_dir)), capsys)
+    assert status == 1
+    records = [json.loads(line) for line in out.splitlines()]
+    assert [r['name'] for r in records] == ['../../etc/evil', str(tmp_path / 'abs'), 'x' * 300, 'y' * 200,
+                                            'w1', 'w1', 'Cam_1', 'CAM_1', 'last']
+    failed = [r['name'] for r in records if 'error' in r]
+    assert failed == ['../../etc/evil', str(tmp_path / 'abs'), 'x' * 300, 'w1', 'CAM_1']
+    assert 'camera_name' in records[0]['error'] and 'camera_name' in records[2]['error']
+    assert 'w1.yaml' in records[5]['error'] and 'row 5' in records[5]['error']
+    assert "'Cam_1'" in records[7]['error']
+    written = sorted(p.name for p in out_dir.iterdir())
+    assert len(written) == 4 and all(len(n) <= 105 for n in written)
+    for record in records:
+        if 'yaml' in record:
+            path = Path(record['yaml']).resolve()
+            assert path.parent == out_dir.resolve() and path.is_file()
+            assert yaml.safe_load(path.read_text())['camera_name'] == record['name']
+    assert not (tmp_path / 'etc').exists() and not (tmp_path / 'abs.yaml').exists()
+
+
+def test_batch_failed_write_is_that_rows_error_and_the_rest_go_on(tmp_path, capsys):
+    not_a_dir = tmp_path / 'file'
+    not_a_dir.write_text('')
+    status, out, err = run_main(batch(tmp_path, HERO9 + 'c905,1280,720,63.1,,\n', '--yaml-dir',
+                                      str(not_a_dir / 'sub')), capsys)
+    assert status == 1
+    records = [json.loads(line) for line in out.splitlines()]
+    assert [r['name'] for r in records] == ['w1', 'c905']
+    assert all('cannot write' in r['error'] for r in records)
+
+
+@pytest.mark.parametrize('extra, option', [
+    (['--hfov', '100'], '--hfov'), (['--width', '640'], '--width'), (['--yaml', 'x.yaml'], '--yaml'),
+    (['--preset', 'gopro_hero9_wide'], '--preset'), (['--camera-name', 'x'], '--camera-name'),
+    (['--circle-fov', '190'], '--circle-fov'),
+])
+def test_batch_rejects_options_it_cannot_honour(tmp_path, capsys, extra, option):
+    status, out, err = run_main(batch(tmp_path, HERO9, *extra), capsys)
+    one_line_error(status, err, option, '--batch')
+    assert out == ''
+
+
+def test_yaml_dir_needs_batch(tmp_path, capsys):
+    status, out, err = run_main(['solve', '--width', '1920', '--height', '1080', '--hfov', '118',
+                                 '--yaml-dir', str(tmp_path)], capsys)
+    one_line_error(status, err, '--yaml-dir', '--batch')
+
+
+def test_fit_warning_plumb_bob_on_a_fisheye(capsys):
+    args = ['solve', '--width', '1920', '--height', '1080', '--hfov', '118', '--vfov', '69']
+    status, out, err = run_main(args + ['--distortion-model', 'plumb_bob', '--json'], capsys)
+    assert status == 0
+    record = json.loads(out)
+    assert record['fit_error_px'] > 5  # a polynomial in tan(theta) cannot follow a 118-degree fisheye
+    assert len(record['warning']) == 1 and 'plumb_bob' in record['warning'][0]
+    assert len(err) == 1 and err[0].startswith('zeroshot-calib: warning:')
+    assert 'plumb_bob' in err[0] and '--distortion-model equidistant' in err[0] and ' px' in err[0]
+    status, out, err = run_main(args + ['--json'], capsys)
+    assert status == 0 and err == [] and json.loads(out)['warning'] == []
+    status, out, err = run_main(args + ['--distortion-model', 'plumb_bob'], capsys)  # text output
+    assert status == 0 and len(err) == 1 and 'warning' in err[0]
+
+
+def test_fit_warning_wide_lens_equidistant(capsys):
+    status, out, err = run_main(['solve', '--width', '848', '--height', '800', '--hfov', '206',
+                                 '--vfov', '172', '--json'], capsys)
+    assert status == 0 and len(err) == 1 and 'equidistant' in err[0]
+    assert json.loads(out)['warning'] and json.loads(out)['fit_error_px'] > 10
+
+
+def test_fit_warning_threshold_is_the_core_constant():
+    from zeroshot_calib_ros.core.fitting import FIT_WARNING_PX
+    assert FIT_WARNING_PX == 0.5
+
+
+def test_version(capsys):
+    from zeroshot_calib_ros import __version__
+    status, out, err = run_main(['--version'], capsys)
+    assert status == 0 and out.strip() == f'zeroshot-calib {__version__}'
+
+
+@pytest.mark.parametrize('args, words', [
+    (['solve', '--hfov', 'abc'], ['--hfov', "'abc'"]),
+    (['solve', '--model', 'nope'], ['--model', 'equidistant']),
+    (['frobnicate'], ['frobnicate']),
+    ([], ['command']),
+])
+def test_usage_errors_are_one_line(capsys, args, words):
+    status, out, err = run_main(args, capsys)
+    one_line_error(status, err, *words)
+
+
+@pytest.fixture
+def small_image(tmp_path):
+    path = tmp_path / 'in.png'
+    cv2.imwrite(str(path), np.full((360, 640, 3), 200, np.uint8))
+    return path
+
+
+def test_rectify_unsupported_output_extension(tmp_path, capsys, small_image):
+    for name in ('out.xyz', 'out', 'out.exr'):
+        status, out, err = run_main(['rectify', str(small_image), '-o', str(tmp_path / name),
+                                     '--hfov', '118', '--vfov', '69'], capsys)
+        one_line_error(status, err, name, '.png')
+        assert not (tmp_path / name).exists()
+
+
+def test_rectify_missing_or_unreadable_input(tmp_path, capsys):
+    garbage = tmp_path / 'garbage.png'
+    garbage.write_bytes(b'not an image')
+    for path in (tmp_path / 'missing.png', garbage, tmp_path):
+        status, out, err = run_main(['rectify', str(path), '-o', str(tmp_path / 'o.png'), '--hfov', '90'],
+                                    capsys)
+        one_line_error(status, err, 'cannot read image')
+    status, out, err = run_main(['rectify', str(garbage), '-o', str(tmp_path / 'no' / 'dir' / 'o.png'),
+                                 '--hfov', '90'], capsys)
+    one_line_error(status, err, 'directory')
+
+
+def write_hero9_yaml(tmp_path, capsys, name='hero9.yaml', width=1920, height=1080):
+    path = tmp_path / name
+    assert main(['solve', '--width', str(width), '--height', str(height), '--hfov', '118', '--vfov', '69',
+                 '--yaml', str(path)]) == 0
+    capsys.readouterr()
+    return path
+
+
+def test_rectify_with_a_calibration_file_scales_to_the_image(tmp_path, capsys):
+    calib = write_hero9_yaml(tmp_path, capsys)
+    image = np.zeros((270, 480), np.uint8)  # a quarter of 1920x1080: same aspect
+    image[::10, :] = 255
+    src = tmp_path / 'in.png'
+    cv2.imwrite(str(src), image)
+    a, b = tmp_path / 'a.png', tmp_path / 'b.png'
+    assert run_main(['rectify', str(src), '-o', str(a), '--calibration', str(calib)], capsys)[0] == 0
+    assert run_main(['rectify', str(src), '-o', str(b), '--hfov', '118', '--vfov', '69'], capsys)[0] == 0
+    # the file's equidistant fit reproduces the exact model to < 0.001 px: the same rectified image
+    diff = np.abs(cv2.imread(str(a), 0).astype(int) - cv2.imread(str(b), 0).astype(int))
+    assert np.mean(diff) < 1.0
+    other = tmp_path / 'other.png'
+    cv2.imwrite(str(other), np.zeros((480, 640), np.uint8))
+    status, out, err = run_main(['rectify', str(other), '-o', str(a), '--calibration', str(calib)], capsys)
+    one_line_error(status, err, '640x480', '1920x1080')
+    status, out, err = run_main(['rectify', str(src), '-o', str(a), '--calibration', str(calib),
+                                 '--hfov', '100'], capsys)
+    one_line_error(status, err, '--hfov', '--calibration')
+
+
+def test_rectify_with_a_preset(tmp_path, capsys, small_image):
+    out = tmp_path / 'out.png'
+    status, _, err = run_main(['rectify', str(small_image), '-o', str(out), '--preset', 'gopro_hero9_wide'],
+                              capsys)
+    assert status == 0, err
+    assert cv2.imread(str(out)).shape == (360, 640, 3)
+    status, _, err = run_main(['rectify', str(small_image), '-o', str(out), '--preset', 'no_such_cam'],
+                              capsys)
+    one_line_error(status, err, 'preset')
+
+
+def test_rectify_bad_calibration_file_is_one_line(tmp_path, capsys, small_image):
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('image_width: .inf\nimage_height: 360\n')
+    status, out, err = run_main(['rectify', str(small_image), '-o', str(tmp_path / 'o.png'),
+                                 '--calibration', str(bad)], capsys)
+    one_line_error(status, err, 'bad.yaml')
+
+
+def corners_file(tmp_path):
+    from test_calibration import TRUE, synthetic_corners
+    path = tmp_path / 'corners.json'
+    synthetic_corners(TRUE, 3).save(str(path))
+    return path, TRUE.width, TRUE.height
+
+
+def test_evaluate_spec_from_a_lens_that_turns_back_says_where(tmp_path, capsys):
+    from zeroshot_calib_ros.core.calibration_file import CameraCalibration
+    corners, w, h = corners_file(tmp_path)
+    # theta_d = theta (1 - 0.5 theta^2) peaks at theta = sqrt(2/3): radius 300 * 0.5443 = 163.3 px,
+    # short of the 400 px to the left and right edges
+    calib = tmp_path / 'turns.yaml'
+    CameraCalibration(w, h, [[300, 0, w / 2], [0, 300, h / 2], [0, 0, 1]], 'equidistant',
+                      [-0.5, 0, 0, 0]).save(str(calib))
+    status, out, err = run_main(['evaluate', '--corners', str(corners), '--spec-from', str(calib)], capsys)
+    one_line_error(status, err, 'turns back at 163 px from the principal point', 'before the image edge')
+    assert 'nan' not in err[0]
+
+
+def test_evaluate_spec_from_an_infinite_size_is_one_line(tmp_path, capsys):
+    corners, w, h = corners_file(tmp_path)
+    calib = tmp_path / 'inf.yaml'
+    calib.write_text(f'image_width: .inf\nimage_height: {h}\ncamera_matrix: {{rows: 3, cols: 3, data: '
+                     f'[300, 0, 400, 0, 300, 250, 0, 0, 1]}}\ndistortion_model: equidistant\n'
+                     'distortion_coefficients: {rows: 1, cols: 4, data: [0, 0, 0, 0]}\n'
+                     'rectification_matrix: {rows: 3, cols: 3, data: [1, 0, 0, 0, 1, 0, 0, 0, 1]}\n'
+                     'projection_matrix: {rows: 3, cols: 4, data: [300, 0, 400, 0, 0, 300, 250, 0, 0, 0, 1, 0]}\n')
+    status, out, err = run_main(['evaluate', '--corners', str(corners), '--spec-from', str(calib)], capsys)
+    one_line_error(status, err, 'inf.yaml')
+
+
+def test_evaluate_spec_from_keeps_fovs_over_180_degrees(tmp_path):
+    import argparse
+    import math
+    from zeroshot_calib_ros import cli
+    from zeroshot_calib_ros.core.calibration_file import CameraCalibration
+    w, h = 848, 800
+    f = (w / 2) / math.radians(103)  # the equidistant law r = f theta: 103 degrees at the side edges
+    calib = tmp_path / 'wide.yaml'
+    CameraCalibration(w, h, [[f, 0, w / 2], [0, f, h / 2], [0, 0, 1]], 'equidistant', [0, 0, 0, 0]).save(str(calib))
+    args = argparse.Namespace(spec_from=str(calib), spec_from_model=None, hfov=None, vfov=None, dfov=None)
+    spec = cli._evaluation_spec(args, argparse.Namespace(width=w, height=h))[0]
+    assert spec.hfov == pytest.approx(206.0, abs=1e-6)
+    assert spec.vfov == pytest.approx(2 * math.degrees((h / 2) / f), abs=1e-6)

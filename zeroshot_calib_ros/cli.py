@@ -5,21 +5,31 @@
     zeroshot-calib solve --preset gopro_hero9_wide [--hfov 120] [--json]
     zeroshot-calib presets [--json]
     zeroshot-calib rectify IN.png -o OUT.png --hfov 118 --vfov 69
+    zeroshot-calib rectify IN.png -o OUT.png --calibration CALIB.yaml | --preset NAME
     zeroshot-calib calibrate 'images/*.png' [--board 8x6 --square 0.108] [--hfov H --vfov V] [--single IMG]
     zeroshot-calib evaluate 'images/*.png' --hfov H --vfov V [--json] [--save-corners FILE]
 
-Errors exit with status 2 and one line on stderr, never a traceback.
+Errors exit with status 2 and one line on stderr, never a traceback; status 1: some --batch rows
+failed (or an internal error, reported in one line). Warnings are one line each on stderr,
+``zeroshot-calib: warning: ...``.
 """
 from __future__ import annotations
 
 import argparse
 import csv
+import difflib
 import glob
+import hashlib
 import json
+import math
 import os
+import re
 import sys
 
 import cv2
+import numpy as np
+
+from . import __version__
 
 from .core.calibration import as_solution, calibrate
 from .core.calibration_file import (DISTORTION_MODELS, CalibrationFileError, CameraCalibration,
@@ -27,8 +37,9 @@ from .core.calibration_file import (DISTORTION_MODELS, CalibrationFileError, Cam
 from .core.camera_models import camera_from_calibration
 from .core.corners import CornerSet, detect_corners, parse_board
 from .core.evaluation import evaluate, evaluation_to_dict, format_tables, reprojection_error
+from .core.fitting import DISTORTION_FITS, FIT_WARNING_PX
 from .core.presets import load_presets, spec_with_preset
-from .core.rectify import INTERPOLATIONS, Rectifier
+from .core.rectify import INTERPOLATIONS, Rectifier, new_camera_matrix
 from .core.solver import PROJECTION_CHOICES, NoConvergence, solve_zero_shot
 from .core.spec import CameraSpec, SpecError
 
@@ -37,12 +48,40 @@ class CliError(Exception):
     """An error to report in one line."""
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with usage errors in one line (the usage itself is in --help)."""
+
+    def error(self, message):
+        self.exit(2, f'{self.prog}: error: {" ".join(str(message).split())} (see {self.prog} --help)\n')
+
+
+def _number(text):
+    """A float argument (nan / inf pass here: the spec checks name the allowed range)."""
+    return float(text)
+
+
+_number.__name__ = 'number'
+
+
+def _whole_number(text):
+    """An image side: an integer, or an integral float such as 1920.0 (1920.5 is refused by
+    CameraSpec, which names the field and the range)."""
+    try:
+        return int(text)
+    except ValueError:
+        value = float(text)
+        return int(value) if math.isfinite(value) and value == int(value) else value
+
+
+_whole_number.__name__ = 'whole number'
+
+
 def _add_spec_arguments(parser, size_required=True):
-    parser.add_argument('--width', type=int, required=size_required, help='image width (px)')
-    parser.add_argument('--height', type=int, required=size_required, help='image height (px)')
-    parser.add_argument('--hfov', type=float, help='horizontal field of view (deg)')
-    parser.add_argument('--vfov', type=float, help='vertical field of view (deg)')
-    parser.add_argument('--dfov', type=float, help='diagonal field of view (deg)')
+    parser.add_argument('--width', type=_whole_number, required=size_required, help='image width (px)')
+    parser.add_argument('--height', type=_whole_number, required=size_required, help='image height (px)')
+    parser.add_argument('--hfov', type=_number, help='horizontal field of view (deg)')
+    parser.add_argument('--vfov', type=_number, help='vertical field of view (deg)')
+    parser.add_argument('--dfov', type=_number, help='diagonal field of view (deg)')
     parser.add_argument('--model', default='auto', choices=PROJECTION_CHOICES,
                         help='fisheye projection; auto picks by dfov when all three FOVs are given, '
                              'else equidistant, and switches to wide (angle-space model for FOVs of '
@@ -52,10 +91,17 @@ def _add_spec_arguments(parser, size_required=True):
 def _add_output_arguments(parser):
     parser.add_argument('--distortion-model', default='equidistant', choices=DISTORTION_MODELS,
                         help='ROS distortion model to fit (default: equidistant)')
-    parser.add_argument('--balance', type=float, default=0.0,
+    parser.add_argument('--balance', type=_number, default=0.0,
                         help='rectified camera: 0 crops to valid pixels, 1 keeps every edge (default 0)')
-    parser.add_argument('--fov-scale', type=float, default=1.0,
+    parser.add_argument('--fov-scale', type=_number, default=1.0,
                         help='rectified camera: divides its focal length (default 1)')
+
+
+def _camera_name_of(row_name: str) -> str:
+    """A batch row's name as a camera_name (camera_info_manager allows letters, digits and _ only:
+    'hero9-wide' is written as hero9_wide), so that any row name gives a loadable file."""
+    name = re.sub(r'[^A-Za-z0-9_]', '_', row_name)[:200]
+    return name if name.strip('_') else 'camera'
 
 
 def _solve(spec, args, camera_name='camera'):
@@ -65,7 +111,45 @@ def _solve(spec, args, camera_name='camera'):
     return solution, calibration, fit
 
 
+def _fit_warnings(solution, calibration, fit):
+    """One-line warnings (without the 'zeroshot-calib: warning: ' prefix) when the ROS
+    distortion model written out (CameraInfo D, the YAML file) misses the solved camera by more
+    than FIT_WARNING_PX somewhere in the image; [] otherwise."""
+    error = fit.max_error_px
+    if math.isfinite(error) and error <= FIT_WARNING_PX:
+        return []
+    model = calibration.distortion_model
+    shown = f'{error:.3g} px' if math.isfinite(error) else 'not finite'
+    text = (f'the ROS {model} fit of the solved camera is off by up to {shown} in the image (fit error; '
+            f'warning above {FIT_WARNING_PX:g} px), so tools that rectify with its D coefficients are '
+            'that far off')
+    other = 'equidistant' if model == 'plumb_bob' else None
+    if other is not None:
+        other_error = DISTORTION_FITS[other](solution.camera).max_error_px
+        if other_error < error:
+            return [f'{text}: use --distortion-model {other} (fit error {other_error:.2g} px)']
+    return [f'{text}: no ROS distortion model follows this lens to the image corners; rectify with the '
+            "exact model instead (zeroshot-calib rectify, or the node's rectified images)"]
+
+
+def _print_warnings(warnings, where=''):
+    for warning in warnings:
+        print(f'zeroshot-calib: warning: {where}{warning}', file=sys.stderr, flush=True)
+
+
+def _save_calibration(calibration, path):
+    try:
+        calibration.save(path)
+    except OSError as exc:
+        raise CliError(f'cannot write {path}: {exc.strerror or exc}') from None
+
+
 SOLVE_SPEC_FIELDS = ('width', 'height', 'hfov', 'vfov', 'dfov', 'circle_diameter', 'circle_fov')
+
+
+def _options_given(args, names):
+    """The command-line spelling of each of ``names`` given (not None) in ``args``."""
+    return ['--' + n.replace('_', '-') for n in names if getattr(args, n, None) is not None]
 
 
 def _solve_spec(args):
@@ -73,6 +157,10 @@ def _solve_spec(args):
     if not args.preset and (args.width is None or args.height is None):
         raise CliError('--width and --height are required (or --preset NAME, or --batch FILE)')
     return spec_with_preset(args.preset, **{k: getattr(args, k, None) for k in SOLVE_SPEC_FIELDS})
+
+
+BATCH_INCOMPATIBLE = SOLVE_SPEC_FIELDS + ('preset', 'yaml', 'camera_name')
+"""`solve` options a --batch run cannot honour: the CSV gives each camera's spec and name."""
 
 
 def _cmd_presets(args):
@@ -99,84 +187,276 @@ def _cmd_presets(args):
 
 
 def _cmd_solve(args):
-    if args.batch:
-        if args.preset:
-            raise CliError('--preset and --batch cannot be combined')
+    if args.batch is not None:
+        given = _options_given(args, BATCH_INCOMPATIBLE)
+        if given:
+            raise CliError(f'{given[0]} cannot be combined with --batch: each CSV row gives its camera '
+                           '(columns name,width,height,hfov,vfov,dfov,circle_diameter,circle_fov)')
         return _solve_batch(args)
+    if args.yaml_dir is not None:
+        raise CliError('--yaml-dir needs --batch CSV (for one camera: --yaml FILE)')
     spec = _solve_spec(args)
-    solution, calibration, fit = _solve(spec, args, args.camera_name)
+    camera_name = 'camera' if args.camera_name is None else args.camera_name
+    solution, calibration, fit = _solve(spec, args, camera_name)
     summary = solution_summary(solution, calibration, fit)
+    warnings = _fit_warnings(solution, calibration, fit)
+    summary['warning'] = warnings
     if args.yaml:
-        calibration.save(args.yaml)
+        _save_calibration(calibration, args.yaml)
     if args.json:
         print(json.dumps(summary))
     else:
         print(summary_text(summary))
         if args.yaml:
             print(f'wrote {args.yaml}')
+    _print_warnings(warnings)
     return 0
 
 
-def _cell(row, key, convert):
-    value = (row.get(key) or '').strip()
-    if not value:
-        return None
+BATCH_COLUMNS = ('name', 'width', 'height', 'hfov', 'vfov', 'dfov', 'circle_diameter', 'circle_fov')
+BATCH_POSITIONAL = BATCH_COLUMNS[:6]
+"""The columns of a CSV without a header row, in this order."""
+YAML_NAME_BYTES = 90
+"""Longest file name (UTF-8 bytes, before a hash suffix and '.yaml') derived from a row name."""
+_HEADER_CELL = re.compile(r'[A-Za-z_][A-Za-z0-9_ -]*\Z')
+
+
+def _is_number(text):
     try:
-        return convert(value)
+        float(text)
+        return True
     except ValueError:
-        raise SpecError(key, value, 'a number') from None
+        return False
+
+
+def _is_header(cells):
+    """A first row is the header when none of its cells is a number and they read as names."""
+    names = [c.strip() for c in cells if c.strip()]
+    if not names or any(_is_number(c) for c in names) or not all(_HEADER_CELL.match(c) for c in names):
+        return False
+    return len(names) >= 2 or names[0].lower() in BATCH_COLUMNS
+
+
+def _batch_columns(cells, where):
+    columns = [c.strip().lower() for c in cells]
+    allowed = f'allowed: {", ".join(BATCH_COLUMNS)}'
+    for i, column in enumerate(columns, start=1):
+        if not column:
+            raise CliError(f'{where}: header column {i} is empty: {allowed}')
+        if column not in BATCH_COLUMNS:
+            close = difflib.get_close_matches(column, BATCH_COLUMNS, n=1)
+            hint = f' (did you mean {close[0]}?)' if close else ''
+            raise CliError(f'{where}: header column {cells[i - 1].strip()!r} is unknown{hint}: {allowed} '
+                           '(a first row without numbers is read as the header)')
+        if columns.index(column) != i - 1:
+            raise CliError(f'{where}: header column {column!r} appears twice: {allowed}, each once')
+    return columns
+
+
+def _batch_rows(path):
+    """(columns, [(row number, line number, cells or csv error)]) of a --batch file."""
+    try:
+        with open(path, 'rb') as f:
+            data = f.read()
+    except OSError as exc:
+        raise CliError(f'cannot read {path}: {exc.strerror or exc}') from None
+    try:
+        text = data.decode('utf-8-sig')
+    except UnicodeDecodeError as exc:
+        raise CliError(f'cannot read {path}: not UTF-8 text (byte 0x{data[exc.start]:02x} at offset '
+                       f'{exc.start}): allowed: a UTF-8 CSV file') from None
+    rows = []
+    for line_number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith('#'):
+            continue
+        try:
+            cells = next(csv.reader([line], strict=True))
+        except csv.Error as exc:
+            cells = exc
+        rows.append((line_number, cells))
+    columns = list(BATCH_POSITIONAL)
+    if rows and not isinstance(rows[0][1], Exception) and _is_header(rows[0][1]):
+        columns = _batch_columns(rows[0][1], f'{path} line {rows[0][0]}')
+        rows = rows[1:]
+    if not rows:
+        raise CliError(f'{path} has no camera rows: allowed: one camera a row, '
+                       f'{",".join(BATCH_POSITIONAL)} (a header row, # comments and blank lines optional)')
+    return columns, [(number, line, cells) for number, (line, cells) in enumerate(rows, start=1)]
+
+
+def _batch_spec(row):
+    def cell(key, convert, allowed):
+        value = (row.get(key) or '').strip()
+        if not value:
+            return None
+        try:
+            return convert(value)
+        except ValueError:
+            raise SpecError(key, value, allowed) from None
+    sides = {k: cell(k, _whole_number, 'a whole number of pixels') for k in ('width', 'height')}
+    return CameraSpec(**sides, **{k: cell(k, float, 'a number') for k in BATCH_COLUMNS[3:]})
+
+
+def _yaml_file_name(name):
+    """A file name for ``name``: letters, digits, '-', '_' and '.' kept, anything else (path
+    separators included) '_', no leading '.', at most YAML_NAME_BYTES bytes (longer names are cut
+    and get a hash of the whole name); None if nothing is left."""
+    safe = ''.join(ch if ch.isalnum() or ch in '-_.' else '_' for ch in name).lstrip('.')
+    if len(safe.encode('utf-8')) > YAML_NAME_BYTES:
+        cut = safe.encode('utf-8')[:YAML_NAME_BYTES].decode('utf-8', 'ignore')
+        safe = f"{cut}-{hashlib.sha1(name.encode('utf-8')).hexdigest()[:8]}"
+    return f'{safe}.yaml' if safe.strip('_') else None
 
 
 def _solve_batch(args):
     """One JSON object per camera row; a bad row reports an error object and the rest go on."""
     failures = 0
-    try:
-        with open(args.batch, newline='') as f:
-            text = f.read()
-    except OSError as exc:
-        raise CliError(f'cannot read {args.batch}: {exc.strerror}') from None
-    lines = text.splitlines()
-    columns = ['name', 'width', 'height', 'hfov', 'vfov', 'dfov']
-    if lines and lines[0].split(',')[0].strip().lower() == 'name':
-        columns = [c.strip().lower() for c in lines[0].split(',')]
-        lines = lines[1:]
-    if args.yaml_dir:
-        os.makedirs(args.yaml_dir, exist_ok=True)
-    for number, values in enumerate(csv.reader(lines), start=1):
-        if not values or all(not v.strip() for v in values):
-            continue
-        row = dict(zip(columns, values))
-        name = (row.get('name') or f'camera_{number}').strip()
+    columns, rows = _batch_rows(args.batch)
+    written = {}  # file name (case-folded) -> (row, name) of the row that wrote it
+    for number, line, cells in rows:
+        name = f'camera_{number}'
         try:
-            spec = CameraSpec(_cell(row, 'width', int), _cell(row, 'height', int), _cell(row, 'hfov', float),
-                              _cell(row, 'vfov', float), _cell(row, 'dfov', float))
-            solution, calibration, fit = _solve(spec, args, name)
-            record = {'name': name, **solution_summary(solution, calibration, fit)}
-            if args.yaml_dir:
-                path = os.path.join(args.yaml_dir, f'{name}.yaml')
-                calibration.save(path)
+            if isinstance(cells, Exception):
+                raise CliError(f'not a CSV row: {cells}')
+            if len(cells) > len(columns):
+                raise CliError(f'{len(cells)} cells, but the {"header" if columns != list(BATCH_POSITIONAL) else "file"} '
+                               f'has {len(columns)} columns: allowed: at most {len(columns)} cells '
+                               f'({",".join(columns)})')
+            row = dict(zip(columns, cells))
+            name = (row.get('name') or '').strip() or name
+            spec = _batch_spec(row)
+            solution, calibration, fit = _solve(spec, args, _camera_name_of(name))
+            record = {'name': name, 'camera_name': calibration.camera_name,
+                      **solution_summary(solution, calibration, fit)}
+            warnings = _fit_warnings(solution, calibration, fit)
+            record['warning'] = warnings
+            if args.yaml_dir is not None:
+                file_name = _yaml_file_name(name) or f'camera_{number}.yaml'
+                key = file_name.casefold()
+                if key in written:
+                    first_row, first_name = written[key]
+                    raise CliError(f'the name {name!r} gives the file {file_name}, already written for row '
+                                   f'{first_row} ({first_name!r}): allowed: each name once (file names ignore case)')
+                path = os.path.join(args.yaml_dir, file_name)
+                _save_calibration(calibration, path)
+                written[key] = (number, name)
                 record['yaml'] = path
-        except (SpecError, CalibrationFileError, NoConvergence, ValueError) as exc:
+        except (CliError, SpecError, CalibrationFileError, NoConvergence, ValueError) as exc:
             failures += 1
-            record = {'name': name, 'row': number, 'error': str(exc)}
+            record = {'name': name, 'row': number, 'line': line, 'error': ' '.join(str(exc).split())}
+            warnings = []
         print(json.dumps(record), flush=True)
+        _print_warnings(warnings, f'row {number} ({name}): ')
     return 1 if failures else 0
 
 
-def _cmd_rectify(args):
-    image = cv2.imread(args.input, cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise CliError(f'cannot read image {args.input}')
-    height, width = image.shape[:2]
-    spec_w, spec_h = args.width or width, args.height or height
-    spec = CameraSpec(spec_w, spec_h, args.hfov, args.vfov, args.dfov)
-    if spec_w * height != spec_h * width:
-        raise CliError(f'the image is {width}x{height} but the spec is {spec_w}x{spec_h}: '
+IMAGE_EXTENSIONS = ('.png', '.jpg', '.jpeg', '.tif', '.tiff', '.bmp', '.webp', '.jp2', '.ppm', '.pgm',
+                    '.pbm', '.pnm', '.pfm', '.sr', '.ras', '.hdr', '.pic', '.avif', '.gif', '.exr')
+"""Extensions cv2.imwrite may support; which it does depends on the OpenCV build."""
+
+
+def _can_write_image(path):
+    ext = os.path.splitext(path)[1].lower()
+    if not ext or (ext == '.exr' and not os.environ.get('OPENCV_IO_ENABLE_OPENEXR')):
+        return False  # OpenCV 4 raises (and logs) for .exr unless the codec is enabled
+    try:
+        return bool(cv2.haveImageWriter(path))
+    except cv2.error:
+        return False
+
+
+def _check_output_image(path):
+    if not _can_write_image(path):
+        supported = [e for e in IMAGE_EXTENSIONS if _can_write_image('x' + e)]
+        raise CliError(f'-o {path}: OpenCV {cv2.__version__} cannot write '
+                       f'{os.path.splitext(path)[1] or "a file without an extension"}: allowed: '
+                       f'{", ".join(supported)}')
+    directory = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(directory):
+        raise CliError(f'-o {path}: cannot write image: directory {directory} does not exist')
+    if os.path.isdir(path):
+        raise CliError(f'-o {path}: cannot write image: it is a directory')
+
+
+def _read_image(path):
+    if not os.path.isfile(path):
+        raise CliError(f'cannot read image {path}: '
+                       + ('it is a directory' if os.path.isdir(path) else 'no such file'))
+    if not os.access(path, os.R_OK):
+        raise CliError(f'cannot read image {path}: permission denied')
+    try:
+        image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    except cv2.error as exc:
+        raise CliError(f'cannot read image {path}: {exc}') from None
+    if image is None or image.size == 0:
+        raise CliError(f'cannot read image {path}: not an image file OpenCV can decode')
+    return image
+
+
+def _load_calibration(path, option):
+    """CameraCalibration.load, every failure one CliError naming the option and the file."""
+    try:
+        return CameraCalibration.load(path)
+    except CalibrationFileError as exc:
+        message = str(exc)
+    except (ArithmeticError, TypeError, KeyError, AttributeError, ValueError) as exc:
+        message = f'not a usable calibration file: {type(exc).__name__}: {exc}'
+    raise CliError(f'{option} {message}' if message.startswith(f'{path}:') else f'{option} {path}: {message}')
+
+
+RECTIFY_SPEC_OPTIONS = SOLVE_SPEC_FIELDS + ('preset', 'model')
+
+
+def _rectify_camera(args, width, height):
+    """(camera model, P or None) for an image of width x height."""
+    balance = 0.0 if args.balance is None else args.balance
+    fov_scale = 1.0 if args.fov_scale is None else args.fov_scale
+    if args.calibration is not None:
+        given = _options_given(args, RECTIFY_SPEC_OPTIONS)
+        if given:
+            raise CliError(f'{given[0]} cannot be combined with --calibration: the calibration file '
+                           'gives the camera')
+        calibration = _load_calibration(args.calibration, '--calibration')
+        cw, ch = calibration.width, calibration.height
+        if (cw, ch) != (width, height):
+            if width * ch != height * cw:
+                raise CliError(f'the image {args.input} is {width}x{height} but --calibration '
+                               f'{args.calibration} is for {cw}x{ch}: allowed: {cw}x{ch} or the same '
+                               'aspect ratio (then scaled)')
+            calibration = calibration.scaled(width, height)
+        camera = calibration.camera()
+        if args.balance is not None or args.fov_scale is not None:
+            return camera, new_camera_matrix(camera, balance, fov_scale)
+        P = np.asarray(calibration.P, dtype=float)[:3, :3]
+        if not abs(np.linalg.det(P)) > 0:
+            raise CliError(f'--calibration {args.calibration}: projection_matrix {P.tolist()} cannot be '
+                           'inverted: allowed: an invertible P (or choose one with --balance / --fov-scale)')
+        return camera, P
+    fields = {k: getattr(args, k) for k in SOLVE_SPEC_FIELDS}
+    if not args.preset:
+        fields['width'] = width if args.width is None else args.width
+        fields['height'] = height if args.height is None else args.height
+    spec = spec_with_preset(args.preset, **fields)
+    if spec.width * height != spec.height * width:
+        raise CliError(f'the image is {width}x{height} but the spec is {spec.width}x{spec.height}: '
                        'aspect ratios differ')
-    solution = solve_zero_shot(spec, args.model)
-    camera = solution.camera if (spec_w, spec_h) == (width, height) else solution.camera.scaled(width, height)
-    rectifier = Rectifier(camera, args.balance, args.fov_scale, args.interpolation)
-    if not cv2.imwrite(args.output, rectifier.rectify(image)):
+    solution = solve_zero_shot(spec, args.model or 'auto')
+    camera = solution.camera if (spec.width, spec.height) == (width, height) \
+        else solution.camera.scaled(width, height)
+    return camera, new_camera_matrix(camera, balance, fov_scale)
+
+
+def _cmd_rectify(args):
+    _check_output_image(args.output)
+    image = _read_image(args.input)
+    height, width = image.shape[:2]
+    camera, P = _rectify_camera(args, width, height)
+    rectifier = Rectifier(camera, interpolation=args.interpolation, P=P)
+    try:
+        written = cv2.imwrite(args.output, rectifier.rectify(image))
+    except cv2.error as exc:
+        raise CliError(f'cannot write image {args.output}: OpenCV: {exc}') from None
+    if not written:
         raise CliError(f'cannot write image {args.output}')
     return 0
 
@@ -255,6 +535,7 @@ def _cmd_calibrate(args):
     calibration, fit = CameraCalibration.from_solution(solution, args.distortion_model, args.balance,
                                                        args.fov_scale, args.camera_name)
     summary = solution_summary(solution, calibration, fit)
+    summary['warning'] = _fit_warnings(solution, calibration, fit)
     used = [corners.names[v] for v in result.views]
     summary.update({
         'method': result.label, 'init': result.init, 'a': solution.omega * solution.f,
@@ -262,6 +543,9 @@ def _cmd_calibrate(args):
         'images': len(used), 'image_names': used,
         'board': {'cols': corners.board.cols, 'rows': corners.board.rows, 'square': corners.board.square},
         'rms_px': result.rms_px, 'notes': list(result.notes),
+        'rejected_corners': [r.to_dict() for r in result.rejected],
+        'duplicate_views': [{'image': a, 'same_as': b, 'rms_difference_px': d}
+                            for a, b, d in result.duplicates],
     })
     if views is not None and len(corners) > 1:
         summary['eps_all_px'] = reprojection_error(result.camera, corners).rms
@@ -270,7 +554,8 @@ def _cmd_calibrate(args):
                                 f'model; {calibration.distortion_model} coefficients are fitted up to '
                                 '90 degrees and extrapolate beyond')
     if args.yaml:
-        calibration.save(args.yaml)
+        _save_calibration(calibration, args.yaml)
+    _print_warnings(summary['warning'])
     if args.json:
         print(json.dumps(json_safe(summary)))
         return 0
@@ -292,6 +577,40 @@ def _cmd_calibrate(args):
     return 0
 
 
+def _ray_reach(camera, edge):
+    """Distance (px) from the principal point towards the pixel ``edge`` up to which the camera
+    still gives rays (bisection on where unproject turns NaN)."""
+    centre = np.array([camera.cx, camera.cy])
+    direction = np.asarray(edge, dtype=float) - centre
+    lo, hi = 0.0, 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if np.all(np.isfinite(camera.unproject(centre + mid * direction))):
+            lo = mid
+        else:
+            hi = mid
+    return lo * float(np.hypot(*direction))
+
+
+def _check_fovs_derived(camera, fovs, source):
+    """CliError when an edge pixel has no ray: the lens curve turns back before the image edge."""
+    w, h, cx, cy = camera.width, camera.height, camera.cx, camera.cy
+    edges = {'hfov': (((0, cy), 'left'), ((w, cy), 'right')), 'vfov': (((cx, 0), 'top'), ((cx, h), 'bottom'))}
+    for key, pair in edges.items():
+        if math.isfinite(fovs[key]):
+            continue
+        for edge, side in pair:
+            if not np.all(np.isfinite(camera.unproject(np.asarray(edge, dtype=float)))):
+                reach = _ray_reach(camera, edge)
+                distance = math.hypot(edge[0] - cx, edge[1] - cy)
+                raise CliError(f"{source}: the calibration's distortion turns back at {reach:.0f} px from the "
+                               f'principal point, before the image edge ({side}, {distance:.0f} px away), so '
+                               f'it gives no {key}: allowed: a calibration whose distortion rises up to the image '
+                               'edges (or give --hfov / --vfov instead of --spec-from)')
+        raise CliError(f'{source}: {key} = {fovs[key]} cannot be derived: allowed: a calibration with rays at '
+                       'the image edges')
+
+
 def _evaluation_spec(args, corners):
     """(spec, spec_source, reference camera, reference_source) from the FOV flags or --spec-from."""
     if not args.spec_from:
@@ -300,16 +619,17 @@ def _evaluation_spec(args, corners):
         return _fov_spec(args, corners), 'spec sheet (command line)', None, ''
     if args.hfov is not None or args.vfov is not None or args.dfov is not None:
         raise CliError('give --spec-from FILE or --hfov / --vfov / --dfov, not both')
-    source = CameraCalibration.load(args.spec_from)
+    source = _load_calibration(args.spec_from, '--spec-from')
     model = args.spec_from_model or source.distortion_model
     if (source.width, source.height) != (corners.width, corners.height):
         raise CliError(f'{args.spec_from} is {source.width}x{source.height} but the images are '
                        f'{corners.width}x{corners.height}')
     camera = camera_from_calibration(model, source.K, source.D, source.width, source.height)
     fovs = camera.fields_of_view()
+    _check_fovs_derived(camera, fovs, f'--spec-from {args.spec_from} (read as {model})')
     spec = CameraSpec(corners.width, corners.height, hfov=fovs['hfov'], vfov=fovs['vfov'])
-    text = (f'no spec sheet: hfov / vfov derived from {args.spec_from} read as {model}, the angles between '
-            'the rays of (0, cy)-(W, cy) and (cx, 0)-(cx, H)')
+    text = (f'no spec sheet: hfov / vfov derived from {args.spec_from} read as {model}, the sums of the '
+            'half-angles either side of the principal point along (0, cy)-(W, cy) and (cx, 0)-(cx, H)')
     return spec, text, camera, f'{args.spec_from} ({model})'
 
 
@@ -337,32 +657,41 @@ def _cmd_evaluate(args):
     return 0
 
 
+def _add_circle_arguments(parser):
+    parser.add_argument('--circle-diameter', type=_number, metavar='PX',
+                        help='circular fisheye: image-circle diameter (px), with --circle-fov')
+    parser.add_argument('--circle-fov', type=_number, metavar='DEG',
+                        help='circular fisheye: field of view across the image circle (deg)')
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog='zeroshot-calib',
         description='Zero-shot calibration of wide-angle and fisheye cameras from resolution and '
                     'spec-sheet field of view (J.-Y. Lee, CVPR 2021).')
-    sub = parser.add_subparsers(dest='command', required=True)
+    parser.add_argument('--version', action='version', version=f'%(prog)s {__version__}')
+    sub = parser.add_subparsers(dest='command', required=True, metavar='command',
+                                help='solve, presets, rectify, calibrate or evaluate')
 
     solve = sub.add_parser('solve', help='calibrate from a spec sheet')
     _add_spec_arguments(solve, size_required=False)
     _add_output_arguments(solve)
     solve.add_argument('--method', default='bracketed', choices=('bracketed', 'newton'),
                        help="root finder: bracketed (exact, default) or the paper's damped Newton")
-    solve.add_argument('--camera-name', default='camera', help='camera_name in the YAML file')
+    solve.add_argument('--camera-name', help='camera_name in the YAML file (default: camera)')
     solve.add_argument('--json', action='store_true', help='print one JSON object')
     solve.add_argument('--yaml', metavar='FILE', help='write a camera_info_manager calibration file')
     solve.add_argument('--batch', metavar='CSV',
                        help='cameras, one per row: name,width,height,hfov,vfov,dfov (empty cells '
-                            'allowed); prints one JSON object per line')
-    solve.add_argument('--yaml-dir', metavar='DIR', help='with --batch: write DIR/<name>.yaml per camera')
+                            'allowed), or the columns a header row names (those, circle_diameter, '
+                            'circle_fov); # comments; prints one JSON object per line')
+    solve.add_argument('--yaml-dir', metavar='DIR',
+                       help='with --batch: write DIR/<name>.yaml per camera (the name made a safe file '
+                            "name: letters, digits, '-', '_', '.'; others become '_')")
     solve.add_argument('--preset', metavar='NAME',
                        help='start from a published spec (`zeroshot-calib presets` lists them); '
                             'explicit --width/--height/--hfov/... override its fields')
-    solve.add_argument('--circle-diameter', type=float, metavar='PX',
-                       help='circular fisheye: image-circle diameter (px), with --circle-fov')
-    solve.add_argument('--circle-fov', type=float, metavar='DEG',
-                       help='circular fisheye: field of view across the image circle (deg)')
+    _add_circle_arguments(solve)
     solve.set_defaults(run=_cmd_solve)
 
     presets = sub.add_parser('presets', help='list the camera presets (published spec sheets)')
@@ -374,9 +703,17 @@ def build_parser() -> argparse.ArgumentParser:
     rectify.add_argument('-o', '--output', required=True, help='output image')
     _add_spec_arguments(rectify, size_required=False)
     _add_output_arguments(rectify)
+    _add_circle_arguments(rectify)
+    rectify.add_argument('--preset', metavar='NAME',
+                         help='the camera of a published spec (`zeroshot-calib presets`); flags override '
+                              'its fields; an image of another size with the same aspect ratio is scaled')
+    rectify.add_argument('--calibration', metavar='FILE',
+                         help='the camera of a calibration file (camera_calibration_parsers YAML or .ini) '
+                              'instead of a spec; its P unless --balance / --fov-scale are given; an image '
+                              'of another size with the same aspect ratio is scaled')
     rectify.add_argument('--interpolation', type=int, default=1, choices=sorted(INTERPOLATIONS),
                          help='0 nearest, 1 linear, 2 cubic, 4 lanczos4 (default 1)')
-    rectify.set_defaults(run=_cmd_rectify)
+    rectify.set_defaults(run=_cmd_rectify, model=None, balance=None, fov_scale=None)
     calib = sub.add_parser('calibrate', help='calibrate from chessboard images or a corners file '
                                              '(FC_eq.d., zero-shot start when a spec is given)')
     _add_corner_arguments(calib)
@@ -409,17 +746,29 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line(exc) -> str:
+    return ' '.join(str(exc).split()) or type(exc).__name__
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if hasattr(cv2, 'setLogLevel'):
+        cv2.setLogLevel(1)  # fatal only: OpenCV's own warnings would be extra stderr lines; we report
     try:
         return args.run(args)
     except BrokenPipeError:  # output piped into `head`: not an error of ours
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
-    except (CliError, SpecError, CalibrationFileError, NoConvergence, ValueError, OSError) as exc:
-        print(f'zeroshot-calib: error: {exc}', file=sys.stderr)
+    except (CliError, SpecError, CalibrationFileError, NoConvergence, ValueError, OSError, cv2.error) as exc:
+        print(f'zeroshot-calib: error: {_one_line(exc)}', file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        return 130
+    except Exception as exc:  # a bug: still one line, and not status 2 (which means bad input)
+        print(f'zeroshot-calib: internal error: {type(exc).__name__}: {_one_line(exc)} (please report it '
+              'with the command line)', file=sys.stderr)
+        return 1
 
 
 if __name__ == '__main__':

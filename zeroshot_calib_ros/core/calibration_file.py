@@ -1,16 +1,33 @@
-"""Calibration records: what a ROS CameraInfo carries, as camera_calibration_parsers YAML.
+"""Calibration records: what a ROS CameraInfo carries, in camera_calibration_parsers' files.
 
-The YAML layout is the one camera_calibration_parsers reads and writes and camera_info_manager
-loads from ``camera_info_url`` (file:// or package://), so a file written here can be given to
-any ROS camera driver.
+The formats are the ones camera_calibration_parsers reads and writes and camera_info_manager
+loads from ``camera_info_url``: YAML (parse_yml.cpp) for ``.yaml`` / ``.yml`` and the Videre INI
+(parse_ini.cpp) for ``.ini``, chosen by extension as readCalibration / writeCalibration do. So a
+file written here can be given to any ROS camera driver, and theirs load here.
+
+Reading follows yaml-cpp's view of a document (every scalar a string, converted per field) and
+is stricter than the C++ parsers where they would load garbage (``stoi("1280.9")`` is 1280,
+a short INI row becomes NaN): every malformed file raises CalibrationFileError with one line
+that names the file, the field and what is allowed. What a CameraCalibration holds is always
+valid, so whatever is saved loads again.
+
+binning_x, binning_y and roi are CameraInfo fields that neither C++ format has. They are
+written only when they differ from their defaults (0 = no binning, all-zero roi = the full
+image), as extra YAML keys after the standard ones and as extra keys in the INI ``[image]``
+section; the C++ parsers ignore both (parse_yml.cpp indexes the keys it knows, parse_ini.cpp's
+parse_image_section looks only for the lines ``width`` and ``height``).
 """
 from __future__ import annotations
 
+import contextlib
+import errno
 import math
 import os
+import re
+import stat
+import tempfile
 from dataclasses import dataclass, field
-from typing import Optional
-from urllib.parse import unquote, urlparse
+from typing import List, Optional
 
 import numpy as np
 import yaml
@@ -19,19 +36,199 @@ from .camera_models import CameraModel, camera_from_calibration
 from .fitting import DISTORTION_FITS
 from .rectify import new_camera_matrix
 from .solver import ZeroShotSolution
+from .spec import MAX_IMAGE_SIDE
 
 DISTORTION_MODELS = tuple(DISTORTION_FITS)
+"""The models ``from_solution`` can fit."""
 NONZERO_EPSILON = 1e-20
 """Stand-in for an exact-zero coefficient of a distorting model (see ``CameraCalibration.from_solution``)."""
 
+DISTORTION_COEFFICIENTS = {'equidistant': (4,), 'fisheye': (4,), 'plumb_bob': (0, 4, 5, 8),
+                           'rational_polynomial': (8,)}
+"""The models a loaded calibration may have (what ``camera_from_calibration`` can rectify) and
+their allowed numbers of coefficients."""
+
+DEFAULT_CAMERA_INFO_URL = 'file://${ROS_HOME}/camera_info/${NAME}.yaml'
+"""camera_info_manager's URL for an empty ``camera_info_url`` (loading and saving)."""
+FORMATS = {'.yaml': 'yaml', '.yml': 'yaml', '.ini': 'ini'}
+"""parse.cpp: the extension picks the format, exactly (``.YAML`` is refused there too)."""
+UNKNOWN_CAMERA_NAME = 'unknown'
+"""parse_yml.cpp's camera name for a file without one."""
+MAX_CAMERA_NAME = 200
+"""Longest camera_name: ``${NAME}.yaml`` must fit a 255-byte file name."""
+MAX_FILE_BYTES = 1 << 20
+"""Largest calibration file read (a real one is about 1 kB); bigger is refused unread."""
+MAX_YAML_DEPTH = 32
+"""Deepest YAML nesting accepted (a calibration file nests 2 deep); PyYAML's composer recurses."""
+MAX_DISTORTION_VALUES = 64
+_CONDITION_LIMIT = 1e12
+"""A 3x3 matrix whose singular values differ by more than this is taken as singular."""
+
+_CAMERA_NAME = re.compile(r'[A-Za-z0-9_]+')  # camera_info_manager setCameraName (C-locale isalnum)
+_INTEGER_TEXT = re.compile(r'[0-9]{1,12}')
+_NUMBER_TEXT = re.compile(r'[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?')
+_NON_FINITE_TEXT = re.compile(r'[-+]?\.?(?:inf|infinity|nan)', re.IGNORECASE)
+_TRUE, _FALSE = {'true', 'yes', 'on', 'y'}, {'false', 'no', 'off', 'n'}  # yaml-cpp as<bool>
+_ROI_KEYS = ('x_offset', 'y_offset', 'height', 'width', 'do_rectify')  # RegionOfInterest.msg order
+_INI_RESERVED = ('image', 'externals')  # parse_ini.cpp sections that are not a camera section
+
+
+def _one_line(message) -> str:
+    return ' '.join(str(message).splitlines())
+
 
 class CalibrationFileError(ValueError):
-    """A calibration file or URL cannot be used; the message says which and why."""
+    """A calibration file, record or URL cannot be used; the message (always one line, so it can
+    go into a log line or a service response) says which field and what is allowed."""
+
+    def __init__(self, message):
+        super().__init__(_one_line(message))
 
 
-@dataclass
+class CalibrationSaveError(OSError, CalibrationFileError):
+    """``CameraCalibration.save`` failed. An OSError, as the errors callers caught before, and a
+    CalibrationFileError; ``strerror`` is the reason alone, ``str()`` names the target file too.
+    The target is left as it was and no temporary file stays behind."""
+
+    def __init__(self, path: str, reason: str, code: Optional[int] = None):
+        reason = _one_line(reason)
+        super().__init__(code if code is not None else errno.EINVAL, reason, path)
+        self.message = f'cannot save {path}: {reason}'
+
+    def __str__(self):
+        return self.message
+
+
+def _show(value, limit: int = 40) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + '...'
+
+
+def _float_text(value: float) -> str:
+    """Shortest exact text of a finite float that both yaml-cpp and PyYAML read as a float:
+    PyYAML's YAML 1.1 resolver wants a '.' in the mantissa (``1e-20`` would be a string)."""
+    text = repr(float(value))
+    mantissa, e, exponent = text.partition('e')
+    if e and '.' not in mantissa:
+        text = f'{mantissa}.0e{exponent}'
+    return text
+
+
+def _integer(name: str, value, low: int, high: int, what: str = '') -> int:
+    """An integer field, given as text (a file) or a Python / numpy integer (never bool or float)."""
+    allowed = f'allowed: an integer from {low} to {high}{what}'
+    if isinstance(value, str) and _INTEGER_TEXT.fullmatch(value):
+        number = int(value)
+    elif isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)):
+        number = int(value)
+    else:
+        raise CalibrationFileError(f'{name} = {_show(value)} is invalid: {allowed}')
+    if not low <= number <= high:
+        raise CalibrationFileError(f'{name} = {number} is invalid: {allowed}')
+    return number
+
+
+def _number(name: str, value) -> float:
+    """A finite number, given as text (a file) or a Python / numpy number (never bool)."""
+    if isinstance(value, str) and _NUMBER_TEXT.fullmatch(value):
+        number = float(value)
+    elif isinstance(value, str) and _NON_FINITE_TEXT.fullmatch(value):
+        number = math.nan
+    elif isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_)):
+        number = float(value)
+    else:
+        raise CalibrationFileError(f'{name} = {_show(value)} is invalid: allowed: a finite number')
+    if not math.isfinite(number):
+        raise CalibrationFileError(f'{name} = {_show(value)} is invalid: allowed: finite numbers only')
+    return number
+
+
+def _boolean(name: str, value) -> bool:
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, str) and value.lower() in _TRUE | _FALSE:
+        return value.lower() in _TRUE
+    raise CalibrationFileError(f'{name} = {_show(value)} is invalid: allowed: true or false')
+
+
+def check_camera_name(name) -> str:
+    """``name`` if camera_info_manager's setCameraName accepts it (not empty; ASCII letters,
+    digits and '_'), else CalibrationFileError. It goes into ``${NAME}`` file paths and INI
+    section headers, where '/', '..', ']' or a newline would write somewhere else or something
+    unreadable."""
+    if not isinstance(name, str) or not _CAMERA_NAME.fullmatch(name) or len(name) > MAX_CAMERA_NAME:
+        raise CalibrationFileError(
+            f'camera_name = {_show(name)} is invalid: allowed: 1 to {MAX_CAMERA_NAME} ASCII letters, digits '
+            "and '_' (camera_info_manager's rule)")
+    return name
+
+
+@dataclass(frozen=True)
+class RegionOfInterest:
+    """sensor_msgs/RegionOfInterest: the part of the full-resolution (unbinned) image that is
+    sent. All zeros (the default) means the full image."""
+
+    x_offset: int = 0
+    y_offset: int = 0
+    height: int = 0
+    width: int = 0
+    do_rectify: bool = False
+
+    def is_full(self) -> bool:
+        return self.x_offset == self.y_offset == self.height == self.width == 0
+
+    def to_dict(self) -> dict:
+        return {key: getattr(self, key) for key in _ROI_KEYS}
+
+    @classmethod
+    def from_value(cls, value, name: str = 'roi') -> 'RegionOfInterest':
+        """A RegionOfInterest from itself or a mapping of its fields (missing ones: defaults)."""
+        if isinstance(value, RegionOfInterest):
+            return value
+        if not isinstance(value, dict):
+            raise CalibrationFileError(f'{name} = {_show(value)} is invalid: allowed: a mapping of '
+                                       f'{", ".join(_ROI_KEYS)}')
+        unknown = [key for key in value if key not in _ROI_KEYS]
+        if unknown:
+            raise CalibrationFileError(f'{name}.{_show(unknown[0])} is unknown: allowed: {", ".join(_ROI_KEYS)}')
+        fields = {key: _integer(f'{name}.{key}', value[key], 0, MAX_IMAGE_SIDE, ' (pixels)')
+                  for key in _ROI_KEYS[:4] if key in value}
+        if 'do_rectify' in value:
+            fields['do_rectify'] = _boolean(f'{name}.do_rectify', value['do_rectify'])
+        return cls(**fields)
+
+
+def _as_matrix(label: str, value, rows: int, cols: Optional[int] = None) -> np.ndarray:
+    """``value`` as a float array of rows x cols (cols None: a vector), copied."""
+    shape = f'{rows} x {cols}' if cols else 'a list of'
+    try:
+        array = np.array(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise CalibrationFileError(f'{label} = {_show(value)} is invalid: allowed: {shape} numbers') from None
+    if cols is None:
+        return array.ravel()
+    if array.size != rows * cols:
+        raise CalibrationFileError(f'{label} has {array.size} values: allowed: {rows * cols} ({shape})')
+    return array.reshape(rows, cols)
+
+
+def _well_conditioned(matrix: np.ndarray) -> bool:
+    try:
+        s = np.linalg.svd(matrix, compute_uv=False)
+    except np.linalg.LinAlgError:
+        return False
+    return bool(s[0] > 0 and s[-1] > s[0] / _CONDITION_LIMIT)
+
+
+@dataclass(eq=False)
 class CameraCalibration:
-    """Intrinsics, distortion, rectification and projection of one camera, as in CameraInfo."""
+    """Intrinsics, distortion, rectification, projection, binning and ROI of one camera, as in
+    CameraInfo. Validated on construction (CalibrationFileError): what it holds can be saved,
+    loaded again and rectified with.
+
+    ``load_warnings`` lists what loading a file assumed (for the caller to log), as the C++
+    parsers' RCLCPP_WARNs; it is not part of the record (``==`` ignores it).
+    """
 
     width: int
     height: int
@@ -41,31 +238,89 @@ class CameraCalibration:
     R: np.ndarray = field(default_factory=lambda: np.eye(3))
     P: Optional[np.ndarray] = None
     camera_name: str = 'camera'
+    binning_x: int = 0
+    binning_y: int = 0
+    roi: RegionOfInterest = field(default_factory=RegionOfInterest)
+    load_warnings: List[str] = field(default_factory=list, compare=False)
 
     def __post_init__(self):
-        self.K = np.asarray(self.K, dtype=float).reshape(3, 3)
-        self.D = np.asarray(self.D, dtype=float).ravel()
-        self.R = np.asarray(self.R, dtype=float).reshape(3, 3)
+        self.width = _integer('width (image_width)', self.width, 1, MAX_IMAGE_SIDE, ' (pixels)')
+        self.height = _integer('height (image_height)', self.height, 1, MAX_IMAGE_SIDE, ' (pixels)')
+        self.K = _as_matrix('K (camera_matrix)', self.K, 3, 3)
+        self.D = _as_matrix('D (distortion_coefficients)', self.D, 1)
+        self.R = _as_matrix('R (rectification_matrix)', self.R, 3, 3)
         if self.P is None:
             self.P = np.hstack([self.K, np.zeros((3, 1))])
-        self.P = np.asarray(self.P, dtype=float).reshape(3, 4)
+        self.P = _as_matrix('P (projection_matrix)', self.P, 3, 4)
+        self.roi = RegionOfInterest.from_value(self.roi)
+        self.load_warnings = list(self.load_warnings)
         self.validate()
 
     def validate(self):
         """Raise CalibrationFileError unless this is a usable calibration."""
-        for name in ('width', 'height'):
-            value = getattr(self, name)
-            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value <= 0:
-                raise CalibrationFileError(f'{name} = {value!r} is invalid: allowed: a positive integer')
-        for name in ('K', 'D', 'R', 'P'):
+        for name, key in (('width', 'image_width'), ('height', 'image_height')):
+            _integer(f'{name} ({key})', getattr(self, name), 1, MAX_IMAGE_SIDE, ' (pixels)')
+        check_camera_name(self.camera_name)
+        labels = {'K': 'camera_matrix', 'D': 'distortion_coefficients', 'R': 'rectification_matrix',
+                  'P': 'projection_matrix'}
+        for name, key in labels.items():
             if not np.all(np.isfinite(getattr(self, name))):
-                raise CalibrationFileError(f'{name} is invalid: allowed: finite numbers only')
-        if not (self.K[0, 0] > 0 and self.K[1, 1] > 0):
-            raise CalibrationFileError(f'K = {self.K.tolist()} is invalid: allowed: positive fx and fy')
+                raise CalibrationFileError(f'{name} ({key}) is invalid: allowed: finite numbers only')
+        K, P = self.K, self.P
+        if not (K[0, 0] > 0 and K[1, 1] > 0 and K[1, 0] == 0 and K[2].tolist() == [0.0, 0.0, 1.0]):
+            raise CalibrationFileError(f'K (camera_matrix) = {K.tolist()} is invalid: allowed: '
+                                       '[[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0')
+        if not _well_conditioned(self.R):
+            raise CalibrationFileError(f'R (rectification_matrix) = {self.R.tolist()} is invalid: '
+                                       'allowed: an invertible 3 x 3 matrix (a rotation)')
+        # Rectification maps invert P[:3, :3] R; a P that cannot be inverted is refused whether
+        # or not anyone rectifies, so that every record saved also loads again. CameraInfo.msg's
+        # form [fx' 0 cx' Tx; 0 fy' cy' Ty; 0 0 1 0] is invertible exactly when fx', fy' > 0
+        # (upper triangular), which needs no conditioning threshold: f = 0.5 px, cx = 7e5 is fine.
+        if not (P[0, 0] > 0 and P[1, 1] > 0 and P[1, 0] == 0 and P[2, :3].tolist() == [0.0, 0.0, 1.0]):
+            raise CalibrationFileError(f'P (projection_matrix) = {P.tolist()} is unusable for rectification: '
+                                       "allowed: [[fx', s, cx', Tx], [0, fy', cy', Ty], [0, 0, 1, Tz]] with "
+                                       "fx', fy' > 0 (P[:3, :3] invertible)")
+        model = self.distortion_model
+        if model not in DISTORTION_COEFFICIENTS:
+            raise CalibrationFileError(f'distortion_model = {_show(model)} is invalid: allowed: '
+                                       f'{", ".join(DISTORTION_COEFFICIENTS)}')
+        counts = DISTORTION_COEFFICIENTS[model]
+        if self.D.size not in counts:
+            raise CalibrationFileError(
+                f'D (distortion_coefficients) has {self.D.size} values: allowed for {model}: '
+                + ' or '.join(map(str, counts)))
+        _integer('binning_x', self.binning_x, 0, self.width, ' (0 and 1: no binning)')
+        _integer('binning_y', self.binning_y, 0, self.height, ' (0 and 1: no binning)')
+        roi = self.roi
+        if not isinstance(roi, RegionOfInterest):
+            raise CalibrationFileError(f'roi = {_show(roi)} is invalid: allowed: a RegionOfInterest')
+        for key, high in (('x_offset', self.width), ('y_offset', self.height), ('height', self.height),
+                          ('width', self.width)):
+            _integer(f'roi.{key}', getattr(roi, key), 0, high, ' (pixels)')
+        if not isinstance(roi.do_rectify, (bool, np.bool_)):
+            raise CalibrationFileError(f'roi.do_rectify = {_show(roi.do_rectify)} is invalid: allowed: true or false')
+        if not roi.is_full() and not (
+                roi.width >= 1 and roi.height >= 1 and roi.x_offset + roi.width <= self.width
+                and roi.y_offset + roi.height <= self.height):
+            raise CalibrationFileError(
+                f'roi = {roi.to_dict()} is invalid: allowed: all zero (the full image) or a region of at '
+                f'least 1 x 1 pixels inside the {self.width} x {self.height} image')
         try:
-            camera_from_calibration(self.distortion_model, self.K, self.D, self.width, self.height)
+            camera_from_calibration(model, K, self.D, self.width, self.height)
         except ValueError as exc:
             raise CalibrationFileError(str(exc)) from None
+
+    def __eq__(self, other):
+        if not isinstance(other, CameraCalibration):
+            return NotImplemented
+        return ((self.width, self.height, self.distortion_model, self.camera_name, self.binning_x,
+                 self.binning_y, self.roi)
+                == (other.width, other.height, other.distortion_model, other.camera_name, other.binning_x,
+                    other.binning_y, other.roi)
+                and all(np.array_equal(getattr(self, n), getattr(other, n)) for n in ('K', 'D', 'R', 'P')))
+
+    __hash__ = None  # mutable, compared by value
 
     def camera(self) -> CameraModel:
         """The camera model this calibration describes (what the rectifier uses)."""
@@ -100,14 +355,24 @@ class CameraCalibration:
         return calibration, fit
 
     def scaled(self, width: int, height: int) -> 'CameraCalibration':
-        """The calibration for a binned / resized image of the same aspect ratio."""
-        sx, sy = width / self.width, height / self.height
-        S = np.diag([sx, sy, 1.0])
+        """The same camera at another full resolution (a resized or binned sensor mode of the
+        same aspect ratio): K and P scaled; the roi mapped onto the new pixel grid (offsets
+        rounded down, far edges up, so it still covers what it covered); binning factors kept,
+        as they relate the sent image to whatever the full resolution is (one larger than the
+        new size is refused)."""
+        S = np.diag([width / self.width, height / self.height, 1.0])
+        roi = self.roi
+        if not roi.is_full():
+            x0, y0 = roi.x_offset * width // self.width, roi.y_offset * height // self.height
+            x1 = -(-(roi.x_offset + roi.width) * width // self.width)
+            y1 = -(-(roi.y_offset + roi.height) * height // self.height)
+            roi = RegionOfInterest(x0, y0, y1 - y0, x1 - x0, roi.do_rectify)
         return CameraCalibration(width, height, S @ self.K, self.distortion_model, self.D, self.R,
-                                 S @ self.P, self.camera_name)
+                                 S @ self.P, self.camera_name, self.binning_x, self.binning_y, roi)
 
+    # --- YAML (parse_yml.cpp) -----------------------------------------------------------------
     def to_dict(self) -> dict:
-        return {
+        d = {
             'image_width': int(self.width), 'image_height': int(self.height),
             'camera_name': self.camera_name,
             'camera_matrix': {'rows': 3, 'cols': 3, 'data': [float(x) for x in self.K.ravel()]},
@@ -117,85 +382,616 @@ class CameraCalibration:
             'rectification_matrix': {'rows': 3, 'cols': 3, 'data': [float(x) for x in self.R.ravel()]},
             'projection_matrix': {'rows': 3, 'cols': 4, 'data': [float(x) for x in self.P.ravel()]},
         }
+        d.update(self._extra_fields())
+        return d
+
+    def _extra_fields(self) -> dict:
+        """binning / roi, only when not the defaults (so the usual file is what C++ writes)."""
+        extra = {}
+        if self.binning_x or self.binning_y:
+            extra.update(binning_x=int(self.binning_x), binning_y=int(self.binning_y))
+        if not self.roi.is_full() or self.roi.do_rectify:
+            extra['roi'] = self.roi.to_dict()
+        return extra
 
     def to_yaml(self) -> str:
-        """camera_calibration_parsers' layout: block mappings, flow-style data lists."""
+        """parse_yml.cpp's layout and key order: block mappings, flow-style data lists; numbers
+        exact (shortest round-trip text); camera_name quoted, so that names like 123 or true
+        stay strings for PyYAML too; then binning / roi if not the defaults."""
         d = self.to_dict()
         lines = [f"image_width: {d['image_width']}", f"image_height: {d['image_height']}",
-                 f"camera_name: {yaml.safe_dump(d['camera_name'], default_style=None).splitlines()[0]}"]
+                 f'camera_name: "{self.camera_name}"']  # check_camera_name: nothing to escape
         for key in ('camera_matrix', 'distortion_model', 'distortion_coefficients',
                     'rectification_matrix', 'projection_matrix'):
             value = d[key]
             if isinstance(value, str):
                 lines.append(f'{key}: {value}')
                 continue
-            data = ', '.join(repr(float(x)) for x in value['data'])
+            data = ', '.join(_float_text(x) for x in value['data'])
             lines += [f'{key}:', f"  rows: {value['rows']}", f"  cols: {value['cols']}",
                       f'  data: [{data}]']
+        for key in ('binning_x', 'binning_y'):
+            if key in d:
+                lines.append(f'{key}: {d[key]}')
+        if 'roi' in d:
+            lines.append('roi:')
+            lines += [f'  {key}: {str(value).lower()}' for key, value in d['roi'].items()]
         return '\n'.join(lines) + '\n'
 
-    def save(self, path: str):
-        directory = os.path.dirname(os.path.abspath(path))
-        os.makedirs(directory, exist_ok=True)
-        tmp = f'{path}.tmp{os.getpid()}'
-        with open(tmp, 'w') as f:
-            f.write(self.to_yaml())
-        os.replace(tmp, path)  # atomic: a crash mid-write never leaves half a calibration
+    @classmethod
+    def from_yaml_text(cls, text: str) -> 'CameraCalibration':
+        """Parse a calibration YAML document (CalibrationFileError if it is not a valid one)."""
+        if not isinstance(text, str):
+            raise CalibrationFileError(f'YAML text = {_show(text)} is invalid: allowed: a str')
+        if len(text) > MAX_FILE_BYTES:
+            raise CalibrationFileError(f'the YAML text is larger than {MAX_FILE_BYTES} bytes: allowed: '
+                                       'a camera calibration file (about 1 kB)')
+        try:
+            d = yaml.load(text, Loader=_YamlLoader)
+        except CalibrationFileError:
+            raise
+        except yaml.MarkedYAMLError as exc:
+            mark = exc.problem_mark or exc.context_mark
+            where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
+            raise CalibrationFileError(f'invalid YAML: {exc.problem or exc.context}{where}') from None
+        except yaml.YAMLError as exc:
+            raise CalibrationFileError(f'invalid YAML: {exc}') from None
+        except RecursionError:  # the depth cap should come first; never a traceback regardless
+            raise CalibrationFileError(f'invalid YAML: nested too deeply: allowed: {MAX_YAML_DEPTH} levels') from None
+        if not isinstance(d, dict):
+            raise CalibrationFileError(
+                f'not a camera calibration file: the document is {_show(d)}: allowed: a mapping with '
+                f'{", ".join(_YAML_KEYS)}')
+        return cls.from_dict(d)
 
     @classmethod
     def from_dict(cls, d: dict) -> 'CameraCalibration':
+        """A calibration from a parsed YAML mapping: values as text (yaml-cpp's view, what
+        ``from_yaml_text`` gives) or as Python numbers (``yaml.safe_load``, ``to_dict``)."""
+        if not isinstance(d, dict):
+            raise CalibrationFileError(f'not a camera calibration file: {_show(d)}: allowed: a mapping')
+        warnings = []
+
+        def required(key):
+            if key not in d:
+                raise CalibrationFileError(f'{key} is missing (not a camera calibration file): allowed: a '
+                                           f'mapping with {", ".join(_YAML_KEYS)}')
+            return d[key]
+
+        width = _integer('image_width', required('image_width'), 1, MAX_IMAGE_SIDE, ' (pixels)')
+        height = _integer('image_height', required('image_height'), 1, MAX_IMAGE_SIDE, ' (pixels)')
+        camera_name = UNKNOWN_CAMERA_NAME
+        if 'camera_name' in d:
+            camera_name = _file_camera_name(d['camera_name'], warnings)
+        K = _yaml_matrix('camera_matrix', required('camera_matrix'), 3, 3)
+        R = _yaml_matrix('rectification_matrix', required('rectification_matrix'), 3, 3)
+        P = _yaml_matrix('projection_matrix', required('projection_matrix'), 3, 4)
+        if 'distortion_model' in d:
+            model = d['distortion_model']
+            if not isinstance(model, str) or model not in DISTORTION_COEFFICIENTS:
+                raise CalibrationFileError(f'distortion_model = {_show(model)} is invalid: allowed: '
+                                           f'{", ".join(DISTORTION_COEFFICIENTS)}')
+        else:
+            model = 'plumb_bob'
+            warnings.append('distortion_model is missing: assuming plumb_bob (as camera_calibration_parsers does)')
+        D = _yaml_matrix('distortion_coefficients', required('distortion_coefficients'), None, None)
+        binning_x = _integer('binning_x', d.get('binning_x', 0), 0, width, ' (0 and 1: no binning)')
+        binning_y = _integer('binning_y', d.get('binning_y', 0), 0, height, ' (0 and 1: no binning)')
+        roi = RegionOfInterest.from_value(d['roi']) if 'roi' in d else RegionOfInterest()
         try:
-            def matrix(key, rows, cols):
-                m = d[key]
-                data = np.asarray(m['data'], dtype=float)
-                if data.size != rows * cols:
-                    raise CalibrationFileError(f'{key} has {data.size} values, allowed: {rows * cols}')
-                return data.reshape(rows, cols)
-            D = np.asarray(d['distortion_coefficients']['data'], dtype=float)
-            return cls(int(d['image_width']), int(d['image_height']), matrix('camera_matrix', 3, 3),
-                       str(d['distortion_model']), D, matrix('rectification_matrix', 3, 3),
-                       matrix('projection_matrix', 3, 4), str(d.get('camera_name', 'camera')))
-        except (KeyError, TypeError, ValueError) as exc:
-            if isinstance(exc, CalibrationFileError):
-                raise
-            raise CalibrationFileError(f'not a camera calibration file: {type(exc).__name__}: {exc}') from None
+            return cls(width, height, K, model, D, R, P, camera_name, binning_x, binning_y, roi, warnings)
+        except CalibrationFileError as exc:  # the file's own key names, for the one who edits it
+            raise CalibrationFileError(_file_vocabulary(str(exc))) from None
+
+    # --- INI (parse_ini.cpp) ------------------------------------------------------------------
+    def to_ini(self, precision: Optional[int] = None) -> str:
+        """parse_ini.cpp's writeCalibrationIni layout, character for character. Its numbers are
+        ``std::fixed`` with 5 decimals (``precision=5`` gives exactly its bytes); by default
+        they are exact (shortest round-trip text), which its reader (``operator>>``) reads too.
+
+        Like writeCalibrationIni, only plumb_bob with 5 coefficients can be written; camera
+        names ``image`` and ``externals`` would read back as those sections."""
+        if self.distortion_model != 'plumb_bob' or self.D.size != 5:
+            raise CalibrationFileError(
+                f'distortion_model = {self.distortion_model!r} with {self.D.size} coefficients cannot be '
+                'written as INI: allowed: plumb_bob with 5 coefficients (camera_calibration_parsers\' INI); '
+                'save as .yaml')
+        if self.camera_name in _INI_RESERVED:
+            raise CalibrationFileError(f'camera_name = {self.camera_name!r} cannot be written as INI: allowed: '
+                                       'any name but image and externals (INI section names); save as .yaml')
+        number = _float_text if precision is None else (lambda x: f'{float(x):.{int(precision)}f}')
+
+        def matrix(m):  # SimpleMatrix operator<<: "v v v \n" per row
+            return ''.join(''.join(f'{number(v)} ' for v in row) + '\n' for row in np.atleast_2d(m))
+
+        text = f'# Camera intrinsics\n\n[image]\n\nwidth\n{self.width}\n\nheight\n{self.height}\n\n'
+        extra = self._extra_fields()
+        for key in ('binning_x', 'binning_y'):
+            if key in extra:
+                text += f'{key}\n{extra[key]}\n\n'
+        if 'roi' in extra:
+            roi = extra['roi']
+            text += 'roi\n' + ' '.join(str(int(roi[key])) for key in _ROI_KEYS) + '\n\n'
+        text += f'[{self.camera_name}]\n\n'
+        text += 'camera matrix\n' + matrix(self.K)
+        text += '\ndistortion\n' + matrix(self.D)
+        text += '\n\nrectification\n' + matrix(self.R)
+        text += '\nprojection\n' + matrix(self.P)
+        return text
+
+    @classmethod
+    def from_ini_text(cls, text: str) -> 'CameraCalibration':
+        """Parse camera_calibration_parsers' INI (CalibrationFileError if it is not a valid one)."""
+        if not isinstance(text, str):
+            raise CalibrationFileError(f'INI text = {_show(text)} is invalid: allowed: a str')
+        if len(text) > MAX_FILE_BYTES:
+            raise CalibrationFileError(f'the INI text is larger than {MAX_FILE_BYTES} bytes: allowed: '
+                                       'a camera calibration file (about 1 kB)')
+        return _parse_ini(cls, text)
+
+    # --- files --------------------------------------------------------------------------------
+    def file_text(self, path: str) -> str:
+        """The content ``save(path)`` writes: YAML or INI by the extension of ``path``."""
+        return self.to_ini() if _format_of(path) == 'ini' else self.to_yaml()
+
+    def save(self, path: str):
+        """Write this calibration to ``path`` (YAML or INI by its extension), all or nothing.
+
+        The content is built first, written to a temporary file in the target's directory,
+        fsynced and renamed over the target; then the directory is fsynced. A crash at any
+        moment leaves the old or the new file, never a mix (a temporary file left by a killed
+        process is removed by the next save of the same target). Missing parent directories are
+        created, as camera_info_manager does. A symlinked target is written through: the file it
+        points to is replaced and the link stays. An existing file keeps its permission mode;
+        one with no write permission at all (e.g. 0444) is refused rather than replaced, as
+        camera_info_manager's ofstream would fail on it. Raises CalibrationSaveError (an
+        OSError) naming the target, never the temporary file; the target is then unchanged.
+        """
+        path = os.fspath(path)
+        try:
+            data = self.file_text(path).encode('utf-8')
+        except CalibrationFileError as exc:
+            raise CalibrationSaveError(path, str(exc)) from None
+        _atomic_write(path, data)
 
     @classmethod
     def load(cls, path: str) -> 'CameraCalibration':
+        """Read a calibration file (YAML or INI by its extension, as readCalibration does).
+        Raises CalibrationFileError (one line naming ``path`` and the field); what loading
+        assumed is in ``load_warnings``."""
+        path = os.fspath(path)
+        fmt = _format_of(path)
         try:
-            with open(path) as f:
-                d = yaml.safe_load(f)
-        except (OSError, yaml.YAMLError) as exc:
-            raise CalibrationFileError(f'cannot read {path}: {exc}') from None
-        if not isinstance(d, dict):
-            raise CalibrationFileError(f'{path} is not a camera calibration file')
-        return cls.from_dict(d)
+            with open(path, 'rb') as f:
+                data = f.read(MAX_FILE_BYTES + 1)
+        except OSError as exc:
+            raise CalibrationFileError(f'cannot read {path}: {exc.strerror or exc}') from None
+        if len(data) > MAX_FILE_BYTES:
+            raise CalibrationFileError(f'{path} is larger than {MAX_FILE_BYTES} bytes: allowed: a camera '
+                                       'calibration file (about 1 kB)')
+        try:
+            text = data.decode('utf-8-sig')
+        except UnicodeDecodeError as exc:
+            raise CalibrationFileError(f'{path}: not UTF-8 text (byte {exc.start}): not a camera '
+                                       'calibration file') from None
+        try:
+            return cls.from_ini_text(text) if fmt == 'ini' else cls.from_yaml_text(text)
+        except CalibrationFileError as exc:
+            raise CalibrationFileError(f'{path}: {exc}') from None
 
 
-def resolve_camera_info_url(url: str, camera_name: str = 'camera') -> Optional[str]:
-    """Local path of a camera_info_manager URL, or None for an empty URL.
+_YAML_KEYS = ('image_width', 'image_height', 'camera_name', 'camera_matrix', 'distortion_model',
+              'distortion_coefficients', 'rectification_matrix', 'projection_matrix')
 
-    Supports ``file:///abs/path.yaml``, ``package://pkg/rel/path.yaml`` (looked up in the share
-    directories of AMENT_PREFIX_PATH, as ament_index does) and plain paths; ``${NAME}`` is
-    replaced by the camera name, as camera_info_manager does.
+
+def _file_vocabulary(message: str) -> str:
+    """A record's field names as the file names them, in a message about a file."""
+    for name, key in (('K', 'camera_matrix'), ('D', 'distortion_coefficients'), ('R', 'rectification_matrix'),
+                      ('P', 'projection_matrix'), ('width', 'image_width'), ('height', 'image_height')):
+        message = message.replace(f'{name} ({key})', key)
+    return message
+
+
+def _file_camera_name(value, warnings: List[str]) -> str:
+    """A file's camera_name: kept if camera_info_manager could use it; otherwise the
+    calibration still loads (camera_info_manager only compares the name, and warns) with
+    camera_name 'unknown' and a warning, so that every name a record holds can be saved again."""
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        value = str(value)  # yaml.safe_load of an unquoted 123
+    if not isinstance(value, str):
+        raise CalibrationFileError(f'camera_name = {_show(value)} is invalid: allowed: a string')
+    try:
+        return check_camera_name(value)
+    except CalibrationFileError as exc:
+        warnings.append(f'{exc}; using camera_name {UNKNOWN_CAMERA_NAME!r}')
+        return UNKNOWN_CAMERA_NAME
+
+
+def _yaml_matrix(key: str, m, rows: Optional[int], cols: Optional[int]) -> np.ndarray:
+    """parse_yml.cpp's SimpleMatrix {rows, cols, data}: rows and cols fixed (None: the
+    distortion vector, any rows x cols), data exactly rows * cols finite numbers."""
+    if not isinstance(m, dict):
+        raise CalibrationFileError(f'{key} = {_show(m)} is invalid: allowed: a mapping with rows, cols and data')
+    size = {}
+    for name, fixed in (('rows', rows), ('cols', cols)):
+        if name not in m:
+            raise CalibrationFileError(f'{key}.{name} is missing: allowed: {fixed if fixed else "an integer"}')
+        if fixed is None:
+            size[name] = _integer(f'{key}.{name}', m[name], 0, MAX_DISTORTION_VALUES)
+        elif _integer(f'{key}.{name}', m[name], 0, 1 << 31) != fixed:
+            raise CalibrationFileError(f'{key}.{name} = {_show(m[name])} is invalid: allowed: {fixed}')
+        else:
+            size[name] = fixed
+    count = size['rows'] * size['cols']
+    if count > MAX_DISTORTION_VALUES:
+        raise CalibrationFileError(f'{key} has rows x cols = {count} values: allowed: at most {MAX_DISTORTION_VALUES}')
+    data = m.get('data')
+    if not isinstance(data, list):
+        raise CalibrationFileError(f'{key}.data = {_show(data)} is invalid: allowed: a list of {count} numbers')
+    if len(data) != count:
+        raise CalibrationFileError(f'{key}.data has {len(data)} values: allowed: {count} '
+                                   f'(rows {size["rows"]} x cols {size["cols"]})')
+    values = [_number(f'{key}.data[{i}]', v) for i, v in enumerate(data)]
+    return np.array(values, dtype=float).reshape(size['rows'], size['cols']) if rows else np.array(values)
+
+
+class _YamlLoader(yaml.BaseLoader):
+    """yaml-cpp's view of a document: no tags resolved or constructed (every scalar a string,
+    converted per field as yaml-cpp's ``as<T>()`` does, so ``.inf`` or ``true`` is never a
+    number), nesting capped (PyYAML's composer recurses), duplicate keys refused."""
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._depth = 0
+
+    def compose_node(self, parent, index):
+        self._depth += 1
+        try:
+            if self._depth > MAX_YAML_DEPTH:
+                raise CalibrationFileError(f'invalid YAML: nested too deeply: allowed: {MAX_YAML_DEPTH} levels')
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen = set()
+            for key_node, _ in node.value:
+                if isinstance(key_node, yaml.ScalarNode):
+                    if key_node.value in seen:
+                        raise CalibrationFileError(
+                            f'{_show(key_node.value)} appears twice (line {key_node.start_mark.line + 1}): '
+                            'allowed: each key once')
+                    seen.add(key_node.value)
+        return super().construct_mapping(node, deep)
+
+
+def _format_of(path: str) -> str:
+    ext = os.path.splitext(os.fspath(path))[1]
+    if ext not in FORMATS:
+        raise CalibrationFileError(f'{path}: unrecognized format {ext!r}: allowed: .ini, .yml or .yaml '
+                                   '(camera_calibration_parsers)')
+    return FORMATS[ext]
+
+
+# --- INI parsing -------------------------------------------------------------------------------
+
+_INI_MATRICES = (('camera matrix', 3, 3), ('distortion', 1, None), ('rectification', 3, 3), ('projection', 3, 4))
+
+
+def _parse_ini(cls, text: str) -> CameraCalibration:
+    """parse_ini.cpp's reader: lines trimmed, blank and '#' / ';' lines skipped, a line with '['
+    and ']' starts a section; ``[image]`` holds ``width`` / ``height`` (the line after each key),
+    ``[externals]`` is ignored, any other section is the camera's (its name in the brackets)
+    with ``camera matrix``, ``distortion``, ``rectification`` and ``projection`` followed by
+    their rows. Stricter where the C++ reader would load garbage: exact row lengths, numbers
+    only, one camera section."""
+    sections = []  # (header, line number, [(line number, line)])
+    for number, raw in enumerate(text.split('\n'), start=1):
+        line = raw.strip()
+        if not line or line[0] in '#;':
+            continue
+        if '[' in line and ']' in line:
+            if not (line[0] == '[' and line[-1] == ']'):
+                raise CalibrationFileError(f'line {number}: section header {_show(line)} is invalid: allowed: '
+                                           '[image], [externals] or [<camera_name>]')
+            sections.append((line[1:-1], number, []))
+        elif not sections:
+            raise CalibrationFileError(f'line {number}: {_show(line)} is outside a section: allowed: [image] '
+                                       'and [<camera_name>] sections (not a camera calibration file)')
+        else:
+            sections[-1][2].append((number, line))
+    image = [s for s in sections if s[0] == 'image']
+    cameras = [s for s in sections if s[0] not in _INI_RESERVED]
+    if len(image) != 1:
+        raise CalibrationFileError(('the [image] section is missing' if not image else
+                                    f'the [image] section appears {len(image)} times')
+                                   + ': allowed: one (not a camera calibration file)')
+    if len(cameras) != 1:
+        raise CalibrationFileError(f'{len(cameras)} camera sections: allowed: one [<camera_name>] camera section')
+    _, image_line, image_lines = image[0]
+    name, camera_line, camera_lines = cameras[0]
+
+    def value_after(key, lines, section_line, section):
+        keys = [i for i, (_, line) in enumerate(lines) if line == key]  # std::find: the first
+        if not keys:
+            return None
+        i = keys[0]
+        if i + 1 >= len(lines):
+            raise CalibrationFileError(f'[{section}] {key} (line {lines[i][0]}) has no value after it: '
+                                       'allowed: its value on the next line')
+        return lines[i + 1]
+
+    def image_integer(key, low, high, what, default=None):
+        found = value_after(key, image_lines, image_line, 'image')
+        if found is None:
+            if default is None:
+                raise CalibrationFileError(f'[image] {key} is missing: allowed: {key} and its value on the next line')
+            return default
+        return _integer(f'[image] {key} (line {found[0]})', found[1], low, high, what)
+
+    width = image_integer('width', 1, MAX_IMAGE_SIDE, ' (pixels)')
+    height = image_integer('height', 1, MAX_IMAGE_SIDE, ' (pixels)')
+    binning_x = image_integer('binning_x', 0, width, ' (0 and 1: no binning)', 0)
+    binning_y = image_integer('binning_y', 0, height, ' (0 and 1: no binning)', 0)
+    roi = RegionOfInterest()
+    found = value_after('roi', image_lines, image_line, 'image')
+    if found is not None:
+        tokens = found[1].split()
+        if len(tokens) != 5:
+            raise CalibrationFileError(f'[image] roi (line {found[0]}) has {len(tokens)} values: allowed: 5 '
+                                       f'({" ".join(_ROI_KEYS)}, do_rectify 0 or 1)')
+        values = {key: _integer(f'[image] roi {key} (line {found[0]})', token, 0, MAX_IMAGE_SIDE, ' (pixels)')
+                  for key, token in zip(_ROI_KEYS[:4], tokens)}
+        values['do_rectify'] = bool(_integer(f'[image] roi do_rectify (line {found[0]})', tokens[4], 0, 1))
+        roi = RegionOfInterest(**values)
+
+    warnings = []
+    camera_name = _file_camera_name(name, warnings)
+    matrices = {}
+    for key, rows, cols in _INI_MATRICES:
+        keys = [i for i, (_, line) in enumerate(camera_lines) if line == key]
+        if not keys:
+            raise CalibrationFileError(f'[{name}] (line {camera_line}): {key} is missing: allowed: '
+                                       f'{key} and its rows on the next lines')
+        start = keys[0] + 1
+        block = camera_lines[start:start + rows]
+        if len(block) < rows:
+            raise CalibrationFileError(f'[{name}] {key} has {len(block)} rows: allowed: {rows}')
+        values = []
+        for number, line in block:
+            tokens = line.split()
+            allowed = (5, 8) if cols is None else (cols,)
+            if len(tokens) not in allowed:
+                raise CalibrationFileError(f'[{name}] {key} line {number} has {len(tokens)} numbers: allowed: '
+                                           + ' or '.join(map(str, allowed)))
+            values += [_number(f'[{name}] {key} line {number} value {j + 1}', token)
+                       for j, token in enumerate(tokens)]
+        matrices[key] = np.array(values)
+    D = matrices['distortion']
+    model = 'plumb_bob' if D.size == 5 else 'rational_polynomial'  # parse_ini.cpp: by the count
+    try:
+        return cls(width, height, matrices['camera matrix'], model, D, matrices['rectification'],
+                   matrices['projection'], camera_name, binning_x, binning_y, roi, warnings)
+    except CalibrationFileError as exc:
+        message = str(exc)
+        for name_, key in (('K (camera_matrix)', 'camera matrix'), ('D (distortion_coefficients)', 'distortion'),
+                           ('R (rectification_matrix)', 'rectification'), ('P (projection_matrix)', 'projection'),
+                           ('width (image_width)', 'width'), ('height (image_height)', 'height')):
+            message = message.replace(name_, f'{key} ({name_.split()[0]})')
+        raise CalibrationFileError(message) from None
+
+
+# --- safe saves --------------------------------------------------------------------------------
+
+def _temp_prefix(base: str, pid: Optional[int] = None) -> str:
+    """Hidden temporary name next to the target, with the writer's pid so that the next save can
+    tell a dead writer's leftover from a live one's file in progress."""
+    return f'.{base}.tmp-{os.getpid() if pid is None else pid}-'
+
+
+def _process_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    if not 0 < pid < (1 << 22):  # pid_max limit; os.kill(0, ...) would signal our group
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # EPERM: someone else's live process
+        return True
+    return True
+
+
+def _remove_stale_temps(directory: str, base: str):
+    """Remove temporary files that writers of this target left when they were killed (SIGKILL,
+    power loss: no code runs to remove them). Only our exact name pattern, only for pids that
+    no longer run; best effort."""
+    pattern = re.compile(re.escape(f'.{base}.tmp-') + r'([0-9]{1,10})-[a-z0-9_]{8}\Z')
+    try:
+        names = os.listdir(directory)
+    except OSError:
+        return
+    for name in names:
+        match = pattern.match(name)
+        if match and not _process_alive(int(match.group(1))):
+            with contextlib.suppress(OSError):
+                os.unlink(os.path.join(directory, name))
+
+
+def _umask() -> int:
+    """The process umask without changing it (os.umask would, racing other threads)."""
+    try:
+        with open('/proc/self/status') as f:
+            for line in f:
+                if line.startswith('Umask:'):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _atomic_write(path: str, data: bytes):
+    """Replace ``path`` by ``data`` atomically (see ``CameraCalibration.save``)."""
+    target = os.path.realpath(path)
+    shown = path if target == os.path.abspath(path) else f'{path} (link to {target})'
+
+    def fail(reason, code=None):
+        return CalibrationSaveError(shown, reason, code)
+
+    parent = os.path.dirname(os.path.abspath(path))
+    try:
+        os.makedirs(parent, exist_ok=True)
+    except OSError as exc:
+        raise fail(f'cannot create directory {parent}: {exc.strerror}', exc.errno) from None
+    target = os.path.realpath(path)  # again: the parent may have been created just now
+    if os.path.islink(target):
+        raise fail('symbolic link loop', errno.ELOOP)
+    directory, base = os.path.split(target)
+    try:
+        st = os.stat(target)
+    except FileNotFoundError:
+        st = None
+    except OSError as exc:
+        raise fail(exc.strerror, exc.errno) from None
+    if st is None:
+        mode = 0o666 & ~_umask()  # what open() would create
+    elif stat.S_ISDIR(st.st_mode):
+        raise fail('it is a directory: allowed: a file path', errno.EISDIR)
+    elif not stat.S_ISREG(st.st_mode):
+        raise fail('it is not a regular file', errno.EINVAL)
+    else:
+        mode = stat.S_IMODE(st.st_mode)
+        if not mode & 0o222:
+            # A read-only calibration is someone's "do not overwrite"; renaming over it would
+            # only need write permission on the directory, so refuse as ofstream would.
+            raise fail(f'the file is read-only (mode {mode:04o}): make it writable to replace it', errno.EACCES)
+    _remove_stale_temps(directory, base)
+    try:
+        fd, temp = tempfile.mkstemp(prefix=_temp_prefix(base), dir=directory)
+    except OSError as exc:
+        raise fail(f'cannot create a file in {directory}: {exc.strerror}', exc.errno) from None
+    try:
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view):]
+            os.fchmod(fd, mode)
+            if st is not None and (st.st_uid, st.st_gid) != (os.geteuid(), os.getegid()):
+                with contextlib.suppress(OSError):  # only root may give the file back
+                    os.fchown(fd, st.st_uid, st.st_gid)
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(temp, target)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(temp)
+        if isinstance(exc, OSError):
+            raise fail(exc.strerror or type(exc).__name__, exc.errno) from None
+        raise
+    try:  # make the rename itself durable
+        dir_fd = os.open(directory, os.O_RDONLY | getattr(os, 'O_DIRECTORY', 0))
+        try:
+            os.fsync(dir_fd)
+        finally:
+            os.close(dir_fd)
+    except OSError as exc:
+        if exc.errno not in (errno.EINVAL, errno.ENOTSUP, errno.EBADF):  # fs without directory fsync
+            raise fail(f'written, but flushing directory {directory} failed: {exc.strerror}', exc.errno) from None
+
+
+# --- camera_info_url ---------------------------------------------------------------------------
+
+_URL_ALLOWED = ('allowed: file:///absolute/path, package://package/path, a plain path or empty '
+                f'(= {DEFAULT_CAMERA_INFO_URL}), with variables ${{NAME}} and ${{ROS_HOME}}, '
+                'to a .yaml, .yml or .ini file')
+
+
+def ros_home() -> str:
+    """$ROS_HOME, or ~/.ros as camera_info_manager and rcl use when it is unset or empty
+    (``~`` expanded in both)."""
+    return os.path.expanduser(os.environ.get('ROS_HOME') or os.path.join('~', '.ros'))
+
+
+def _substitute(url: str, camera_name: str) -> str:
+    """camera_info_manager's resolveURL: ``${NAME}`` and ``${ROS_HOME}``; a '$' not followed by
+    '{' stays; any other ``${`` is an error here (resolveURL logs it and keeps going)."""
+    out, rest = [], 0
+    while True:
+        dollar = url.find('$', rest)
+        if dollar < 0:
+            out.append(url[rest:])
+            return ''.join(out)
+        out.append(url[rest:dollar])
+        if url.startswith('${NAME}', dollar):
+            out.append(camera_name)
+            rest = dollar + len('${NAME}')
+        elif url.startswith('${ROS_HOME}', dollar):
+            out.append(ros_home())
+            rest = dollar + len('${ROS_HOME}')
+        elif url.startswith('${', dollar):
+            end = url.find('}', dollar)
+            variable = url[dollar:end + 1] if end > 0 else url[dollar:dollar + 12]
+            raise CalibrationFileError(f'camera_info_url = {_show(url, 80)} is invalid: unknown variable '
+                                       f'{variable}: {_URL_ALLOWED}')
+        else:
+            out.append('$')
+            rest = dollar + 1
+
+
+def resolve_camera_info_url(url: str, camera_name: str = 'camera') -> str:
+    """Local path of a camera_info_manager URL, as camera_info_manager resolves it.
+
+    ``${NAME}`` is the camera name (which must pass camera_info_manager's name rule, as it goes
+    into the path) and ``${ROS_HOME}`` $ROS_HOME or ~/.ros. An empty URL is the default
+    ``file://${ROS_HOME}/camera_info/${NAME}.yaml``, for loading and saving alike.
+    ``file:///abs/path`` (scheme in any case, path taken verbatim), ``package://pkg/rel/path``
+    (the share directory of ``pkg`` in AMENT_PREFIX_PATH, as ament_index finds it) and plain
+    paths are accepted; other schemes, ``flash:///`` (unsupported there too) and unknown
+    variables raise CalibrationFileError naming camera_info_url.
     """
-    if not url:
-        return None
-    url = url.replace('${NAME}', camera_name)
-    parsed = urlparse(url)
-    if parsed.scheme == 'file':
-        return unquote(parsed.netloc + parsed.path)
-    if parsed.scheme == 'package':
-        package, rel = parsed.netloc, parsed.path.lstrip('/')
+    if not isinstance(url, str):
+        raise CalibrationFileError(f'camera_info_url = {_show(url)} is invalid: {_URL_ALLOWED}')
+    check_camera_name(camera_name)
+    given = url
+    resolved = _substitute(url or DEFAULT_CAMERA_INFO_URL, camera_name)
+
+    def invalid(why):
+        return CalibrationFileError(f'camera_info_url = {_show(given, 80)} is invalid: {why}: {_URL_ALLOWED}')
+
+    lower = resolved.lower()
+    if lower.startswith('file:'):
+        if not lower.startswith('file:///'):
+            raise invalid('a file URL needs an absolute path (file:///...)')
+        path = resolved[len('file://'):]
+    elif lower.startswith('package:'):
+        package, rel = '', ''
+        if lower.startswith('package://'):
+            package, _, rel = resolved[len('package://'):].partition('/')
+        if not package or not rel:
+            raise invalid('a package URL is package://package/path')
         for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
             if prefix and os.path.exists(os.path.join(prefix, 'share', 'ament_index', 'resource_index',
                                                       'packages', package)):
-                return os.path.join(prefix, 'share', package, rel)
-        raise CalibrationFileError(f'camera_info_url = {url!r} is invalid: package {package!r} not found '
-                                   'in AMENT_PREFIX_PATH')
-    if parsed.scheme in ('',):
-        return url
-    raise CalibrationFileError(f'camera_info_url = {url!r} is invalid: allowed: file://, package:// or a path')
+                path = os.path.join(prefix, 'share', package, rel)
+                break
+        else:
+            raise CalibrationFileError(f'camera_info_url = {_show(given, 80)} is invalid: package {package!r} not '
+                                       'found in AMENT_PREFIX_PATH')
+    elif lower.startswith('flash:'):
+        raise invalid('flash:/// URLs are not supported (nor by camera_info_manager)')
+    elif re.match(r'[A-Za-z][A-Za-z0-9+.-]*://', resolved):
+        raise invalid(f'scheme {resolved.split(":", 1)[0]!r} is not supported')
+    else:
+        path = resolved
+    if os.path.splitext(path)[1] not in FORMATS:
+        raise CalibrationFileError(f'camera_info_url = {_show(given, 80)} is invalid: {path!r} is not a '
+                                   'calibration file name: allowed: a .yaml, .yml or .ini file')
+    return path
 
 
 def json_safe(value):

@@ -70,12 +70,29 @@ class CameraModel:
         return np.where(rays[..., 2:3] > 0, xy, np.nan)
 
     def fields_of_view(self) -> dict:
-        """Edge-to-edge FOVs in degrees through the principal point: hfov between the rays of
-        (0, cy) and (W, cy), vfov between (cx, 0) and (cx, H), dfov between (0, 0) and (W, H)."""
+        """Edge-to-edge FOVs in degrees through the principal point: hfov from (0, cy) to (W, cy),
+        vfov from (cx, 0) to (cx, H), dfov from (0, 0) to (W, H).
+
+        Each is the sum of the two half-angles, the off-axis angles of the edge rays on either
+        side of the principal point (their difference when the principal point lies beyond an
+        edge), so a lens seeing more than 180 degrees reports it (206, not the folded 154 of the
+        angle between the two rays, which never exceeds 180). Up to 180 degrees the angle between
+        the rays is returned: the same for a radially symmetric lens, and the spec-sheet meaning
+        when the rays are not coplanar with the axis (tangential distortion, dfov with the
+        principal point off the diagonal). NaN where an edge pixel has no ray."""
         w, h, cx, cy = self.width, self.height, self.cx, self.cy
         px = np.array([[0, cy], [w, cy], [cx, 0], [cx, h], [0, 0], [w, h]], dtype=float)
         r = self.unproject(px)
-        ang = np.degrees(angle_between(r[0::2], r[1::2]))
+        plain = angle_between(r[0::2], r[1::2])
+        off_axis = np.arctan2(np.linalg.norm(r[:, :2], axis=-1), r[:, 2])
+        # where the principal point projects onto each edge-to-edge segment: 0..1 between the ends
+        start, end = px[0::2], px[1::2]
+        seg = end - start
+        t = np.sum((np.array([cx, cy]) - start) * seg, axis=-1) / np.maximum(np.sum(seg * seg, axis=-1), 1e-300)
+        halves = np.where(t < 0, off_axis[1::2] - off_axis[0::2],
+                          np.where(t > 1, off_axis[0::2] - off_axis[1::2], off_axis[0::2] + off_axis[1::2]))
+        with np.errstate(invalid='ignore'):
+            ang = np.degrees(np.where(halves > np.pi, halves, plain))
         return {'hfov': float(ang[0]), 'vfov': float(ang[1]), 'dfov': float(ang[2])}
 
     def max_field_angle(self) -> float:

@@ -16,6 +16,8 @@ from scipy.optimize import linprog
 from .camera_models import KannalaBrandtCamera, PlumbBobCamera, RadialCamera
 
 FIT_SAMPLES = 2000
+FIT_WARNING_PX = 0.5
+"""A fit whose ``max_error_px`` exceeds this many pixels is reported (CLI and node warn)."""
 
 
 @dataclass
