@@ -106,7 +106,7 @@ def test_set_camera_info_with_an_unusable_P_is_refused_whatever_rectify_is(peer,
     bad.r = np.eye(3).ravel().tolist()
     bad.p = [0.0] * 12
     response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=bad))
-    assert not response.success and 'P = ' in response.status_message
+    assert not response.success and 'P (projection_matrix) = ' in response.status_message
     assert not (tmp_path / 'ros_home' / 'camera_info' / 'camera.yaml').exists()
     peer.spin_for(0.3)
     assert infos[-1].k[0] == pytest.approx(solve_zero_shot(CameraSpec(1920, 1080, 118, 69)).f)

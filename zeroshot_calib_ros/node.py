@@ -432,7 +432,9 @@ class ZeroShotCalibNode(Node):
         self._info_timer = self.create_timer(1.0 / self._rate, self._on_info_timer)
         self._housekeeping_timer = self.create_timer(1.0, self._on_housekeeping)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._on_info_timer()
+        # One at start-up whatever the camera does: transient local then holds a calibration for
+        # late joiners even if a camera exists but has not sent a frame yet.
+        self._publish_own_info()
         self.get_logger().info(self._interfaces_text())
         if self._active.rectify_enabled:  # after the first CameraInfo is out
             self._builder.submit(_Job(self._active, map_threads=None))
@@ -548,8 +550,11 @@ class ZeroShotCalibNode(Node):
         return self.count_publishers(self._image_sub.topic_name) > 0
 
     def _on_info_timer(self):
-        if self._camera_exists():
-            return
+        if not self._camera_exists():
+            self._publish_own_info()
+
+    def _publish_own_info(self):
+        """A CameraInfo stamped now (no image to take the header from)."""
         msg = CameraInfo()
         _fill_camera_info(msg, self._active.calibration)
         msg.header.stamp = self.get_clock().now().to_msg()

@@ -31,6 +31,7 @@ is zero inside that domain and steep outside it (``DOMAIN_WEIGHT``).
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from typing import List, Optional, Sequence
 
@@ -41,7 +42,7 @@ from scipy.optimize import least_squares
 
 from .camera_models import (CameraModel, KannalaBrandtCamera, PinholeCamera, PlumbBobCamera,
                             ZeroShotCamera)
-from .corners import MIN_CORNERS_PER_IMAGE, CornerSet
+from .corners import MIN_CORNERS_PER_IMAGE, CornerSet, check_corner_set
 from .pose import board_poses, transform
 from .projections import PROJECTIONS, FisheyeProjection
 from .solver import UnrepresentableSpec, solve_zero_shot
@@ -61,6 +62,38 @@ view barely constrains it and freeing it lets a single-shot fit overfit."""
 
 class CalibrationError(ValueError):
     """The input cannot be calibrated (too few corners or images, no spec for ZS...)."""
+
+
+OUTLIER_K_SIGMA = 6.0
+OUTLIER_MIN_PX = 3.0
+"""FC rejects a corner whose reprojection error (px, distance) exceeds max(OUTLIER_K_SIGMA sigma,
+OUTLIER_MIN_PX), sigma = median distance / sqrt(2 ln 2) (the per-axis sigma of 2-D Gaussian
+noise, robust to the outliers themselves). 6 sigma: no Gaussian corner in 10^7 exceeds it; 3 px:
+the model misfit of real lenses never rejects a sound corner (the shared set: the largest error
+after the one real outlier is 2.4 px)."""
+OUTLIER_LOSS = 'soft_l1'
+OUTLIER_SCALE_PX = 1.0
+"""Once a corner exceeds the threshold, FC refits from the start with this robust loss and
+scale (px) before deciding which corners are outliers, so that an outlier that pulled the plain
+least-squares fit cannot hide in it; the final fit is plain least squares over the inliers."""
+MAX_REJECTION_ROUNDS = 4
+
+
+@dataclass
+class RejectedCorner:
+    """A corner FC left out of its fit as an outlier."""
+
+    image: str
+    index: int
+    """Corner index j = r * cols + c (row-major, as in the corners file)."""
+    residual_px: float
+    """Its reprojection error (px) through the final fit."""
+
+    def to_dict(self) -> dict:
+        return {'image': self.image, 'index': self.index, 'residual_px': self.residual_px}
+
+    def __str__(self) -> str:
+        return f'{os.path.basename(self.image)} #{self.index} ({self.residual_px:.1f} px)'
 
 
 @dataclass
@@ -85,6 +118,10 @@ class CalibrationResult:
     fixed_principal_point: Optional[bool] = None
     nfev: int = 0
     notes: List[str] = field(default_factory=list)
+    rejected: List['RejectedCorner'] = field(default_factory=list)
+    """FC: outlier corners left out of the fit (see OUTLIER_K_SIGMA)."""
+    duplicates: List[tuple] = field(default_factory=list)
+    """(name, earlier name, RMS difference px) of duplicate views among ``views``."""
 
     @property
     def label(self) -> str:
@@ -186,6 +223,8 @@ class _FcProblem:
     def __init__(self, obj, img, free_pp, cx0, cy0, projection):
         self.obj, self.img = obj, img
         self.n, self.m = img.shape[0], img.shape[1]
+        self.weights = np.ones((self.n, self.m, 1))
+        """0 for rejected corners (their pixel residuals are left out), else 1."""
         self.free_pp = free_pp
         self.k = 4 if free_pp else 2
         self.cx0, self.cy0 = cx0, cy0
@@ -203,11 +242,14 @@ class _FcProblem:
         pts = transform(poses[:, :3], poses[:, 3:], self.obj)
         pixels, theta = _fc_pixels(f, s, cx, cy, pts, self.projection)
         domain = DOMAIN_WEIGHT * f * np.maximum(0.0, theta - (math.pi / 2 - DOMAIN_MARGIN_RAD))
-        return np.concatenate([(pixels - self.img).reshape(self.n, -1), domain], axis=1).ravel()
+        return np.concatenate([((pixels - self.img) * self.weights).reshape(self.n, -1), domain],
+                              axis=1).ravel()
 
     def pixel_residuals(self, x) -> np.ndarray:
-        """(n, M, 2)"""
-        return self.residuals(x).reshape(self.n, 3 * self.m)[:, :2 * self.m].reshape(self.n, self.m, 2)
+        """(n, M, 2), of every corner (rejected ones too)"""
+        f, s, cx, cy, poses = self.unpack(x)
+        pts = transform(poses[:, :3], poses[:, 3:], self.obj)
+        return _fc_pixels(f, s, cx, cy, pts, self.projection)[0] - self.img
 
     def jacobian(self, x):
         """Central differences; dense for a few images, else sparse (CSR) with the block
@@ -250,6 +292,25 @@ class _FcProblem:
         return sparse.csr_matrix((data, cols, indptr), shape=(rows, x.size))
 
 
+def _principal_point_outside(camera) -> str:
+    """The error of a calibrated camera whose principal point is outside the image ('' if
+    inside): no lens of a camera that imaged the board puts it there; the corners or the board
+    declaration are wrong (e.g. a transposed board gave cy = 1475 px in a 750 px image)."""
+    W, H = camera.width, camera.height
+    if -0.5 <= camera.cx <= W - 0.5 and -0.5 <= camera.cy <= H - 0.5:
+        return ''
+    return (f'the calibrated principal point (cx, cy) = ({camera.cx:.1f}, {camera.cy:.1f}) px is '
+            f'outside the {W}x{H} image: allowed: cx in [-0.5, {W - 0.5}], cy in [-0.5, {H - 0.5}] '
+            '(check --board and the corners)')
+
+
+def _checked(corners: CornerSet, views) -> tuple:
+    """(views, CornerReport): the views after _check_views and check_corner_set (which raises
+    CornersError on a wrong board or a degenerate view)."""
+    views = _check_views(corners, views)
+    return views, check_corner_set(corners, views)
+
+
 def _check_views(corners: CornerSet, views) -> tuple:
     if views is None:
         views = range(len(corners))
@@ -272,14 +333,15 @@ def calibrate_fc(corners: CornerSet, views: Optional[Sequence[int]] = None,
     """FC_eq.d. on ``views`` (all images by default) from ``initial_camera`` (the default camera
     when None). ``principal_point``: True frees cx, cy, False fixes them at the start camera's,
     None frees them from MIN_VIEWS_FREE_PRINCIPAL_POINT images on."""
-    views = _check_views(corners, views)
+    views, report = _checked(corners, views)
     W, H = corners.width, corners.height
     proj = PROJECTIONS[projection]
     start = initial_camera if initial_camera is not None else default_camera(W, H, projection)
     free_pp = (len(views) >= MIN_VIEWS_FREE_PRINCIPAL_POINT) if principal_point is None \
         else bool(principal_point)
     result = CalibrationResult(method, views, init=init, initial_camera=start,
-                               fixed_principal_point=not free_pp)
+                               fixed_principal_point=not free_pp, duplicates=report.duplicates,
+                               notes=report.notes)
     obj = corners.object_points()
     img = corners.corners[list(views)]
     poses = board_poses(start, obj, img)
@@ -295,11 +357,41 @@ def calibrate_fc(corners: CornerSet, views: Optional[Sequence[int]] = None,
                          np.hstack([poses.rvecs, poses.tvecs]).ravel()])
     lb = np.full(x0.size, -np.inf)
     lb[0], lb[1] = 1e-6 * max(W, H), 0.0
-    try:
+
+    def solve(x_start, loss='linear'):
+        tol = 1e-12 if loss == 'linear' else 1e-8  # the robust fit only classifies the corners
         with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
-            sol = least_squares(problem.residuals, x0, jac=problem.jacobian, bounds=(lb, np.inf),
-                                method='trf', x_scale='jac', ftol=1e-12, xtol=1e-12, gtol=1e-12,
-                                max_nfev=max_nfev)
+            return least_squares(problem.residuals, x_start, jac=problem.jacobian, bounds=(lb, np.inf),
+                                 method='trf', x_scale='jac', ftol=tol, xtol=tol, gtol=tol,
+                                 max_nfev=max_nfev, loss=loss, f_scale=OUTLIER_SCALE_PX)
+
+    def outliers(x):
+        with np.errstate(invalid='ignore'):
+            d = np.linalg.norm(problem.pixel_residuals(x), axis=-1)
+        d = np.where(np.isfinite(d), d, np.inf)
+        inlier = problem.weights[..., 0] > 0
+        sigma = float(np.median(d[inlier])) / math.sqrt(2 * math.log(2))
+        return d > max(OUTLIER_K_SIGMA * sigma, OUTLIER_MIN_PX), d
+
+    try:
+        sol = solve(x0)
+        nfev = sol.nfev
+        bad, _ = outliers(sol.x)
+        if np.any(bad) and np.all(np.isfinite(sol.fun)):
+            robust = solve(sol.x, OUTLIER_LOSS)
+            nfev += robust.nfev
+            x = robust.x
+            for _ in range(MAX_REJECTION_ROUNDS):
+                bad, _ = outliers(x)
+                if np.array_equal(bad, problem.weights[..., 0] == 0):
+                    break
+                problem.weights = np.where(bad, 0.0, 1.0)[..., None]
+                sol = solve(x)
+                nfev += sol.nfev
+                x = sol.x
+            if not np.any(problem.weights == 0):
+                sol = solve(x)  # nothing rejected after all: the plain fit from the robust one
+                nfev += sol.nfev
     except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
         result.ok = False
         result.error = f'least squares failed: {exc}'
@@ -312,11 +404,25 @@ def calibrate_fc(corners: CornerSet, views: Optional[Sequence[int]] = None,
     a = math.sqrt(max(s, 0.0))
     result.camera = ZeroShotCamera(f, cx, cy, W, H, a / f, proj)
     res = problem.pixel_residuals(sol.x)
-    result.rms_px = float(np.sqrt(np.mean(np.sum(res * res, axis=-1))))
+    inlier = problem.weights[..., 0] > 0
+    result.rms_px = float(np.sqrt(np.mean(np.sum(res * res, axis=-1)[inlier])))
+    distance = np.linalg.norm(res, axis=-1)
+    result.rejected = [RejectedCorner(corners.names[views[i]], int(j), float(distance[i, j]))
+                       for i, j in zip(*np.nonzero(~inlier))]
+    if result.rejected:
+        result.notes.append(f'rejected {len(result.rejected)} outlier corner(s) (error > '
+                            f'max({OUTLIER_K_SIGMA:g} sigma, {OUTLIER_MIN_PX:g} px)), left out of the fit: '
+                            + ', '.join(str(r) for r in result.rejected[:10])
+                            + (' ...' if len(result.rejected) > 10 else ''))
     result.rvecs, result.tvecs = poses6[:, :3].copy(), poses6[:, 3:].copy()
-    result.nfev = int(sol.nfev)
+    result.nfev = int(nfev)
     if sol.status == 0:
         result.notes.append(f'stopped at max_nfev = {max_nfev}')
+    outside = _principal_point_outside(result.camera)
+    if outside:
+        result.ok = False
+        result.error = outside
+        return result
     with np.errstate(invalid='ignore'):
         beyond = np.count_nonzero(~np.all(np.isfinite(result.camera.project(
             transform(result.rvecs, result.tvecs, obj))), axis=-1))
@@ -350,29 +456,149 @@ def _own_rms(camera, obj, img, rvecs, tvecs):
     return float(np.sqrt(np.mean(np.sum(res * res, axis=-1))))
 
 
+RMS_CONTRADICTION_PX = 1.0
+RMS_CONTRADICTION_FACTOR = 2.0
+"""An OpenCV result is unsound when its reprojection RMS recomputed independently
+(cv2.projectPoints / cv2.fisheye.projectPoints on the K, D, rvecs, tvecs it returned) differs
+from the RMS OpenCV reported by more than RMS_CONTRADICTION_PX *and* by more than a factor
+RMS_CONTRADICTION_FACTOR (OpenCV 4.6 and 5.0 both return, for one real single image, 71-88 px
+with a camera whose own RMS is 5e4-4e5 px), or when its principal point is outside the image."""
+
+
+def _cv_rms(project, obj, img, rvecs, tvecs) -> float:
+    """RMS (px, per-point distance) of ``project(obj, rvec, tvec)`` against ``img`` (n, M, 2)."""
+    sq = []
+    for points, r, t in zip(img, rvecs, tvecs):
+        try:
+            p = np.asarray(project(obj, np.asarray(r, float).reshape(3, 1),
+                                   np.asarray(t, float).reshape(3, 1)), float).reshape(-1, 2)
+        except cv2.error:
+            return float('inf')
+        sq.append(np.sum((p - points) ** 2, axis=1))
+    with np.errstate(invalid='ignore', over='ignore'):
+        rms = float(np.sqrt(np.mean(np.concatenate(sq))))
+    return rms if math.isfinite(rms) else float('inf')
+
+
+def _unsound(camera, rvecs, tvecs, obj, img, recomputed: float, reported: float,
+             projector: str) -> str:
+    """Why an OpenCV result is unsound ('' if it is sound), see RMS_CONTRADICTION_PX."""
+    def contradicts(a, b):
+        return not (abs(a - b) <= RMS_CONTRADICTION_PX
+                    or b / RMS_CONTRADICTION_FACTOR <= a <= b * RMS_CONTRADICTION_FACTOR)
+
+    if contradicts(recomputed, reported):
+        return (f'its reprojection RMS recomputed with {projector} ({recomputed:.2f} px) contradicts '
+                f"OpenCV's {reported:.2f} px")
+    points = transform(rvecs, tvecs, obj)
+    behind = int(np.count_nonzero(~(points[..., 2] > 0)))
+    with np.errstate(invalid='ignore', over='ignore', divide='ignore'):
+        own = _own_rms(camera, obj, img, rvecs, tvecs)
+    own = own if math.isfinite(own) else float('inf')
+    if behind or contradicts(own, reported):
+        where = (f'{behind} of {points.shape[0] * points.shape[1]} board corners are behind the '
+                 f'camera (z <= 0) in its extrinsics, which {projector} mirrors in front; '
+                 if behind else '')
+        return (f'{where}its reprojection RMS through the camera model (rays at their angle off '
+                f"the optical axis: {own:.2f} px) contradicts OpenCV's {reported:.2f} px")
+    return _principal_point_outside(camera)
+
+
+def _fc_start(corners: CornerSet, views):
+    """A sound start for an OpenCV retry: FC_eq.d. on the same views (None if it fails)."""
+    try:
+        fc = calibrate_fc(corners, views)
+    except ValueError:
+        return None
+    return fc.camera if fc.ok else None
+
+
+def _run_attempts(result: CalibrationResult, attempts, run, name: str, obj, img) -> CalibrationResult:
+    """Try ``attempts`` [(init label, start thunk returning (K0, D0, flags) or None)] in turn with
+    ``run(K0, D0, flags)`` -> (camera, opencv rms, rvecs, tvecs, recomputed rms, projector).
+    Raising attempts move on to the next; the first sound result is kept; an unsound one moves
+    on too (later attempts exist for it: those marked retry=True)."""
+    raised, unsound = [], []
+    for init, start, retry in attempts:
+        if retry and not unsound:
+            break  # retries from a sound start are for unsound results only
+        if not retry and not raised and init != attempts[0][0]:
+            continue  # the explicit defaults are for an implicit start that raised
+        begin = start()
+        if begin is None:
+            continue
+        K0, D0, flags = begin
+        try:
+            camera, rms, rvecs, tvecs, recomputed, projector = run(K0, D0, flags)
+        except cv2.error as exc:
+            raised.append((init, _cv_message(exc)))
+            continue
+        except _NonFinite:
+            raised.append((init, 'non-finite or non-positive K / D'))
+            continue
+        why = _unsound(camera, rvecs, tvecs, obj, img, recomputed, rms, projector)
+        if why:
+            unsound.append(f'{init}: {why}')
+            continue
+        result.init = init
+        result.camera, result.opencv_rms = camera, float(rms)
+        result.rvecs, result.tvecs = rvecs, tvecs
+        if raised:
+            result.notes.append(f'implicit start raised: {raised[0][1]}')
+        if unsound:
+            result.notes.append(f'retried from {init}: {"; ".join(unsound)}')
+        return result
+    result.ok = False
+    if not unsound:
+        result.error = f'{name} raised: ' + ' / then: '.join(m for _, m in raised)
+    else:
+        result.error = (f'{name} gave no sound camera: ' + ' / then: '.join(
+            [f'{m} (not used)' for m in unsound] + [f'from {i}: raised {m}' for i, m in raised]))
+    return result
+
+
+class _NonFinite(Exception):
+    pass
+
+
 def calibrate_zhang(corners: CornerSet, views: Optional[Sequence[int]] = None,
                     flags: int = 0) -> CalibrationResult:
-    """``cv2.calibrateCamera`` (plumb_bob) on ``views``; failures returned with ok=False."""
-    views = _check_views(corners, views)
-    result = CalibrationResult('zhang', views, init='opencv')
+    """``cv2.calibrateCamera`` (plumb_bob) on ``views``; failures returned with ok=False.
+
+    A result that is unsound (see RMS_CONTRADICTION_PX) is retried once with
+    CALIB_USE_INTRINSIC_GUESS from the FC_eq.d. camera of the same views (its f, cx, cy, D = 0)."""
+    views, report = _checked(corners, views)
+    W, H = corners.width, corners.height
+    result = CalibrationResult('zhang', views, init='opencv', duplicates=report.duplicates,
+                               notes=report.notes)
     obj, img = _opencv_lists(corners, views, np.float32)
-    try:
-        rms, K, D, rvecs, tvecs = cv2.calibrateCamera(obj, img, (corners.width, corners.height),
-                                                      None, None, flags=flags)
-    except cv2.error as exc:
-        result.ok, result.error = False, f'cv2.calibrateCamera raised: {_cv_message(exc)}'
-        return result
-    D = np.asarray(D, float).ravel()
-    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D)) and K[0, 0] > 0 and K[1, 1] > 0):
-        result.ok, result.error = False, 'cv2.calibrateCamera returned non-finite or non-positive K / D'
-        return result
-    result.camera = PlumbBobCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], corners.width, corners.height,
-                                   D[:5] if D.size >= 5 else D)
-    result.opencv_rms = float(rms)
-    result.rvecs = np.array([np.ravel(r) for r in rvecs], float)
-    result.tvecs = np.array([np.ravel(t) for t in tvecs], float)
-    result.rms_px = _own_rms(result.camera, corners.object_points(), corners.corners[list(views)],
-                             result.rvecs, result.tvecs)
+    obj64 = corners.object_points()
+    pts = corners.corners[list(views)]
+
+    def run(K0, D0, fl):
+        rms, K, D, rvecs, tvecs = cv2.calibrateCamera(obj, img, (W, H), K0, D0, flags=fl)
+        D = np.asarray(D, float).ravel()
+        if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D)) and K[0, 0] > 0 and K[1, 1] > 0):
+            raise _NonFinite()
+        camera = PlumbBobCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], W, H, D[:5] if D.size >= 5 else D)
+        rvecs = np.array([np.ravel(r) for r in rvecs], float)
+        tvecs = np.array([np.ravel(t) for t in tvecs], float)
+        Kc, Dc = np.asarray(K, float), D
+        recomputed = _cv_rms(lambda o, r, t: cv2.projectPoints(o, r, t, Kc, Dc)[0], obj64, pts, rvecs, tvecs)
+        return camera, rms, rvecs, tvecs, recomputed, 'cv2.projectPoints'
+
+    def from_fc():
+        cam = _fc_start(corners, views)
+        if cam is None:
+            return None
+        K0 = np.array([[cam.f, 0, cam.cx], [0, cam.f, cam.cy], [0, 0, 1]])
+        return K0, np.zeros(5), flags | cv2.CALIB_USE_INTRINSIC_GUESS
+
+    attempts = [('opencv', lambda: (None, None, flags), False),
+                ('the FC_eq.d. camera of the same images (f, cx, cy; D = 0)', from_fc, True)]
+    _run_attempts(result, attempts, run, 'cv2.calibrateCamera', obj64, pts)
+    if result.ok:
+        result.rms_px = _own_rms(result.camera, obj64, pts, result.rvecs, result.tvecs)
     return result
 
 
@@ -385,42 +611,68 @@ def _cv_message(exc) -> str:
 
 def calibrate_opencv_fisheye(corners: CornerSet, views: Optional[Sequence[int]] = None,
                              flags: Optional[int] = None) -> CalibrationResult:
-    """``cv2.fisheye.calibrate`` (KB4) on ``views``; failures returned with ok=False."""
-    views = _check_views(corners, views)
+    """``cv2.fisheye.calibrate`` (KB4) on ``views``; failures returned with ok=False.
+
+    Starts: OpenCV's implicit one; if that raises, OpenCV's documented defaults made explicit.
+    A result that is unsound (see RMS_CONTRADICTION_PX) is retried with USE_INTRINSIC_GUESS from
+    the documented defaults (if not yet tried) and then from the FC_eq.d. camera of the same
+    views (its f, cx, cy and k1..k4 fitted to it); a result still unsound is returned failed."""
+    views, report = _checked(corners, views)
     if flags is None:
         flags = opencv_fisheye_flag('CALIB_RECOMPUTE_EXTRINSIC') | opencv_fisheye_flag('CALIB_FIX_SKEW')
+    guess = flags | opencv_fisheye_flag('CALIB_USE_INTRINSIC_GUESS')
     W, H = corners.width, corners.height
-    result = CalibrationResult('fisheye', views, init='opencv')
+    result = CalibrationResult('fisheye', views, init='opencv', duplicates=report.duplicates,
+                               notes=report.notes)
     obj, img = _opencv_lists(corners, views, np.float64)
+    obj64 = corners.object_points()
+    pts = corners.corners[list(views)]
     f0 = max(W, H) / math.pi
-    attempts = [('opencv', flags, np.zeros((3, 3))),
-                ('opencv defaults made explicit (f = max(W, H) / pi, centred) after the implicit '
-                 'start raised', flags | opencv_fisheye_flag('CALIB_USE_INTRINSIC_GUESS'),
-                 np.array([[f0, 0, (W - 1) / 2.0], [0, f0, (H - 1) / 2.0], [0, 0, 1]]))]
-    errors = []
-    for init, fl, K0 in attempts:
-        try:
-            rms, K, D, rvecs, tvecs = cv2.fisheye.calibrate(obj, img, (W, H), K0.copy(),
-                                                            np.zeros((4, 1)), flags=fl)
-        except cv2.error as exc:
-            errors.append(_cv_message(exc))
-            continue
+    defaults = np.array([[f0, 0, (W - 1) / 2.0], [0, f0, (H - 1) / 2.0], [0, 0, 1]])
+
+    def run(K0, D0, fl):
+        rms, K, D, rvecs, tvecs = cv2.fisheye.calibrate(obj, img, (W, H), K0.copy(), D0.copy(), flags=fl)
         D = np.asarray(D, float).ravel()
         if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D)) and K[0, 0] > 0 and K[1, 1] > 0):
-            errors.append('non-finite or non-positive K / D')
-            continue
-        result.init = init
-        result.camera = KannalaBrandtCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], W, H, D)
-        result.opencv_rms = float(rms)
-        result.rvecs = np.array([np.ravel(r) for r in rvecs], float)
-        result.tvecs = np.array([np.ravel(t) for t in tvecs], float)
-        result.rms_px = _own_rms(result.camera, corners.object_points(), corners.corners[list(views)],
-                                 result.rvecs, result.tvecs)
-        if errors:
-            result.notes.append(f'implicit start raised: {errors[0]}')
-        return result
-    result.ok = False
-    result.error = 'cv2.fisheye.calibrate raised: ' + ' / then: '.join(errors)
+            raise _NonFinite()
+        camera = KannalaBrandtCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], W, H, D)
+        rvecs = np.array([np.ravel(r) for r in rvecs], float)
+        tvecs = np.array([np.ravel(t) for t in tvecs], float)
+        Kc, Dc = np.asarray(K, float), D.reshape(4, 1)
+        recomputed = _cv_rms(lambda o, r, t: cv2.fisheye.projectPoints(o.reshape(-1, 1, 3), r, t, Kc, Dc)[0],
+                             obj64, pts, rvecs, tvecs)
+        return camera, rms, rvecs, tvecs, recomputed, 'cv2.fisheye.projectPoints'
+
+    def from_fc():
+        cam = _fc_start(corners, views)
+        if cam is None:
+            return None
+        from .fitting import fit_kannala_brandt
+        capped = _DomainCappedCamera(cam.f, cam.cx, cam.cy, W, H, cam.omega, cam.projection)
+        try:
+            D0 = fit_kannala_brandt(capped).D
+        except ValueError:
+            D0 = np.zeros(4)
+        K0 = np.array([[cam.f, 0, cam.cx], [0, cam.f, cam.cy], [0, 0, 1]])
+        return K0, np.asarray(D0, float).reshape(4, 1), guess
+
+    tried_defaults = []
+
+    def explicit_defaults():
+        tried_defaults.append(True)
+        return defaults, np.zeros((4, 1)), guess
+
+    def defaults_retry():
+        return None if tried_defaults else (defaults, np.zeros((4, 1)), guess)
+
+    attempts = [('opencv', lambda: (np.zeros((3, 3)), np.zeros((4, 1)), flags), False),
+                ('opencv defaults made explicit (f = max(W, H) / pi, centred) after the implicit '
+                 'start raised', explicit_defaults, False),
+                ('opencv defaults made explicit (f = max(W, H) / pi, centred)', defaults_retry, True),
+                ('the FC_eq.d. camera of the same images (f, cx, cy, k1..k4 fitted to it)', from_fc, True)]
+    _run_attempts(result, attempts, run, 'cv2.fisheye.calibrate', obj64, pts)
+    if result.ok:
+        result.rms_px = _own_rms(result.camera, obj64, pts, result.rvecs, result.tvecs)
     return result
 
 

@@ -39,7 +39,7 @@ import math
 import os
 import re
 from dataclasses import dataclass, field
-from typing import List, Sequence
+from typing import List, Optional, Sequence
 
 import cv2
 import numpy as np
@@ -48,6 +48,7 @@ CORNERS_FORMAT = 'zeroshot-calib-corners'
 CORNERS_VERSION = 1
 MIN_CORNERS_PER_IMAGE = 6
 """A board with fewer inner corners cannot constrain a pose and the intrinsics together."""
+MAX_BOARD_SIDE = 1000
 
 _FIND_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
@@ -55,6 +56,14 @@ _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-
 
 class CornersError(ValueError):
     """Corners cannot be detected or read; the message says which image / field and why."""
+
+
+def _finite_number(value) -> bool:
+    """A finite int / float that converts to a float (JSON integers may be arbitrarily long)."""
+    try:
+        return math.isfinite(float(value))
+    except (OverflowError, TypeError, ValueError):
+        return False
 
 
 @dataclass(frozen=True)
@@ -68,15 +77,16 @@ class Board:
     def __post_init__(self):
         for name in ('cols', 'rows'):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 2:
-                raise CornersError(f'board {name} = {value!r} is invalid: allowed: an integer >= 2 '
-                                   '(inner corners)')
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) \
+                    or not 2 <= value <= MAX_BOARD_SIDE:
+                raise CornersError(f'board {name} = {_clip(value)} is invalid: allowed: an integer '
+                                   f'from 2 to {MAX_BOARD_SIDE} (inner corners)')
         if self.cols * self.rows < MIN_CORNERS_PER_IMAGE:
             raise CornersError(f'board = {self.cols}x{self.rows} is invalid: {self.cols * self.rows} '
                                f'inner corners, allowed: at least {MIN_CORNERS_PER_IMAGE}')
         if isinstance(self.square, bool) or not isinstance(self.square, (int, float)) \
-                or not math.isfinite(self.square) or self.square <= 0:
-            raise CornersError(f'board square = {self.square!r} is invalid: allowed: a length > 0 '
+                or not _finite_number(self.square) or self.square <= 0:
+            raise CornersError(f'board square = {_clip(self.square)} is invalid: allowed: a length > 0 '
                                '(metres)')
 
     @property
@@ -169,22 +179,23 @@ class CornerSet:
             return CornersError(f'{source}: {where} {what}')
 
         if not isinstance(d, dict):
-            raise bad('top level', 'is not a JSON object')
+            raise bad('top level', 'is not a JSON object: allowed: an object with image_width, '
+                      'image_height, board, images')
         if 'format' in d and d['format'] != CORNERS_FORMAT:
-            raise bad('format', f'= {d["format"]!r} is invalid: allowed: {CORNERS_FORMAT!r}')
-        if 'version' in d and d['version'] != CORNERS_VERSION:
-            raise bad('version', f'= {d["version"]!r} is not supported: allowed: {CORNERS_VERSION}')
+            raise bad('format', f'= {_clip(d["format"])} is invalid: allowed: {CORNERS_FORMAT!r}')
+        if 'version' in d and (isinstance(d['version'], bool) or d['version'] != CORNERS_VERSION):
+            raise bad('version', f'= {_clip(d["version"])} is not supported: allowed: {CORNERS_VERSION}')
         size = []
         for key in ('image_width', 'image_height'):
             if key not in d:
                 raise bad(key, 'is missing')
             v = d[key]
             if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
-                raise bad(key, f'= {v!r} is invalid: allowed: a positive integer (pixels)')
+                raise bad(key, f'= {_clip(v)} is invalid: allowed: a positive integer (pixels)')
             size.append(v)
         b = d.get('board')
         if not isinstance(b, dict):
-            raise bad('board', 'is missing or not an object with cols, rows, square')
+            raise bad('board', 'is missing or invalid: allowed: an object with cols, rows, square')
         for key in ('cols', 'rows', 'square'):
             if key not in b:
                 raise bad(f'board.{key}', 'is missing')
@@ -194,39 +205,43 @@ class CornerSet:
             raise CornersError(f'{source}: {exc}') from None
         images = d.get('images')
         if not isinstance(images, list):
-            raise bad('images', 'is missing or not a list')
+            raise bad('images', 'is missing or invalid: allowed: a list of {name, corners} objects')
         if not images:
             raise bad('images', 'is empty: allowed: at least one image')
         names, corners = [], []
         for k, item in enumerate(images):
             if not isinstance(item, dict):
-                raise bad(f'images[{k}]', 'is not an object with name and corners')
+                raise bad(f'images[{k}]', 'is invalid: allowed: an object with name and corners')
             name = item.get('name', f'image_{k}')
             if not isinstance(name, str):
-                raise bad(f'images[{k}].name', f'= {name!r} is not a string')
+                raise bad(f'images[{k}].name', f'= {_clip(name)} is invalid: allowed: a string')
             pts = item.get('corners')
             if not isinstance(pts, list):
-                raise bad(f'images[{k}].corners', 'is missing or not a list')
+                raise bad(f'images[{k}].corners', f'is missing or not a list: allowed: {board.count} '
+                          '[u, v] pixel pairs')
             if len(pts) != board.count:
                 raise bad(f'images[{k}].corners', f'has {len(pts)} points, allowed: {board.count} '
                           f'(a {board.size} board)')
-            try:
-                arr = np.array(pts, dtype=float)
-            except (TypeError, ValueError):
-                raise bad(f'images[{k}].corners', 'is not a list of [u, v] number pairs') from None
-            if arr.shape != (board.count, 2) or not np.all(np.isfinite(arr)):
-                raise bad(f'images[{k}].corners', 'is not a list of finite [u, v] number pairs')
+            for j, p in enumerate(pts):
+                if not (isinstance(p, list) and len(p) == 2
+                        and all(not isinstance(x, bool) and isinstance(x, (int, float))
+                                and _finite_number(x) for x in p)):
+                    raise bad(f'images[{k}].corners[{j}]', f'= {_clip(p)} is invalid: allowed: a '
+                              '[u, v] pair of finite numbers (pixels)')
+            arr = np.array(pts, dtype=float)
             outside = (arr[:, 0] < -0.5) | (arr[:, 0] > size[0] - 0.5) | (arr[:, 1] < -0.5) \
                 | (arr[:, 1] > size[1] - 0.5)
             if np.any(outside):
                 j = int(np.flatnonzero(outside)[0])
                 raise bad(f'images[{k}].corners[{j}]', f'= {arr[j].tolist()} is outside the '
-                          f'{size[0]}x{size[1]} image')
+                          f'{size[0]}x{size[1]} image: allowed: u in [-0.5, {size[0] - 0.5}], '
+                          f'v in [-0.5, {size[1] - 0.5}]')
             names.append(name)
             corners.append(arr)
         if len(set(names)) != len(names):
             dup = sorted({n for n in names if names.count(n) > 1})
-            raise bad('images', f'has duplicate names: {_short_list(dup)}')
+            raise bad('images', f'has duplicate names: {_short_list(dup)}; allowed: one entry per '
+                      'image name')
         return cls(size[0], size[1], board, names, np.array(corners))
 
     @classmethod
@@ -239,6 +254,12 @@ class CornerSet:
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise CornersError(f'corners file {path} is not valid JSON: {exc}') from None
         return cls.from_dict(d, f'corners file {path}')
+
+
+def _clip(value, limit: int = 40) -> str:
+    """repr of a (possibly huge) JSON value, shortened to one short line."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 5] + ' ...' + text[-1]
 
 
 def _short_list(names, limit: int = 6) -> str:
@@ -298,6 +319,168 @@ def detect_corners(paths: Sequence[str], board: Board = Board(), skip_missing: b
             names.append(str(path))
             corners.append(found)
     if missing and (not skip_missing or not names):
+        hint = _board_hint(missing[0], board) if not names else ''
         raise CornersError(f'board {board.size} (inner corners) not found in {len(missing)} of '
-                           f'{len(paths)} images: {_short_list(missing)}')
+                           f'{len(paths)} images: {_short_list(missing)}{hint}')
     return CornerSet(size[0], size[1], board, names, np.array(corners), missing)
+
+
+def _board_hint(path: str, board: Board) -> str:
+    """When no image shows ``board``: the near board size (one more / fewer corner per side, e.g.
+    squares counted instead of inner corners) that the first image does show, as a message tail
+    ('' if none). Only OpenCV's classic detector with its fast check: a few quick calls."""
+    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if gray is None:
+        return ''
+    c, r = board.cols, board.rows
+    for cols, rows in ((c - 1, r - 1), (c + 1, r + 1), (c - 1, r), (c, r - 1), (c + 1, r), (c, r + 1)):
+        if cols < 2 or rows < 2 or cols * rows < MIN_CORNERS_PER_IMAGE:
+            continue
+        found, _ = cv2.findChessboardCorners(gray, (cols, rows),
+                                             flags=_FIND_FLAGS | cv2.CALIB_CB_FAST_CHECK)
+        if found:
+            return (f'; {os.path.basename(str(path))} shows a board of {cols}x{rows} inner corners: '
+                    f'give --board {cols}x{rows} (COLSxROWS counts inner corners, squares - 1)')
+    return ''
+
+
+# ---------------------------------------------------------------------------------------------
+# Corner-set checks before fitting
+
+GRID_MIN_SINE = 0.05
+"""A board cell (four neighbouring corners) is sound when its quadrilateral turns the same way
+at all four corners, each turn's sine above this (interior angles between ~3 and ~177 degrees):
+true of any board seen by a central camera in front of it, under any radial distortion."""
+GRID_MAX_BAD_FRACTION = 0.25
+"""An image whose declared grid has more bad cells than this fraction is not that grid (one
+outlier corner spoils at most 4 cells: 11 % of an 8x6 board's 35)."""
+COLLAPSED_SPACING_PX = 1.0
+"""Median distance of grid-neighbouring corners below which a view is collapsed."""
+COLLINEAR_RATIO = 0.01
+"""A view whose corners spread less than this fraction across their principal line than along
+it (RMS spreads, the corners' covariance) is collinear: no homography, no pose."""
+DUPLICATE_RMS_PX = 0.5
+"""Two views whose corners differ by less than this RMS (px, in either corner order) are the
+same view."""
+
+
+@dataclass
+class CornerReport:
+    """What ``check_corner_set`` found that is not an error."""
+
+    duplicates: List[tuple] = field(default_factory=list)
+    """(name, earlier name, RMS difference px) of views with (nearly) the same corners."""
+
+    @property
+    def notes(self) -> List[str]:
+        return [f'duplicate view: {os.path.basename(a)} has the corners of {os.path.basename(b)} '
+                f'(RMS difference {d:.3f} px): it counts twice' for a, b, d in self.duplicates]
+
+    def to_list(self) -> List[dict]:
+        return [{'image': a, 'same_as': b, 'rms_difference_px': d} for a, b, d in self.duplicates]
+
+
+def _bad_cells(points: np.ndarray, cols: int, rows: int) -> int:
+    """Cells of the cols x rows grid ``points`` (M, 2) that are folded or flat (GRID_MIN_SINE)."""
+    g = points.reshape(rows, cols, 2)
+    quad = [g[:-1, :-1], g[:-1, 1:], g[1:, 1:], g[1:, :-1]]
+    sines = []
+    for i in range(4):
+        e1 = quad[(i + 1) % 4] - quad[i]
+        e2 = quad[(i + 2) % 4] - quad[(i + 1) % 4]
+        cross = e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]
+        norm = np.linalg.norm(e1, axis=-1) * np.linalg.norm(e2, axis=-1)
+        sines.append(np.where(norm > 0, cross / np.where(norm > 0, norm, 1.0), 0.0))
+    sines = np.stack(sines, axis=-1)
+    handed = np.sign(np.sum(np.sign(sines)))  # the grid's majority handedness
+    good = np.all(handed * sines > GRID_MIN_SINE, axis=-1) if handed else np.zeros(sines.shape[:2], bool)
+    return int(np.count_nonzero(~good))
+
+
+def _not_grid(points: np.ndarray, cols: int, rows: int) -> bool:
+    return _bad_cells(points, cols, rows) > GRID_MAX_BAD_FRACTION * (cols - 1) * (rows - 1)
+
+
+def _degenerate(name: str, points: np.ndarray, board: Board) -> str:
+    """Why the view is degenerate ('' if it is not)."""
+    g = points.reshape(board.rows, board.cols, 2)
+    spacing = np.concatenate([np.linalg.norm(np.diff(g, axis=1), axis=-1).ravel(),
+                              np.linalg.norm(np.diff(g, axis=0), axis=-1).ravel()])
+    median = float(np.median(spacing))
+    if median < COLLAPSED_SPACING_PX:
+        centre = points.mean(axis=0)
+        far = float(np.max(np.linalg.norm(points - centre, axis=1)))
+        return (f'image {name} is degenerate: its {board.count} corners are collapsed (all within '
+                f'{far:.2f} px of ({centre[0]:.1f}, {centre[1]:.1f}), median neighbour spacing '
+                f'{median:.2f} px; allowed: at least {COLLAPSED_SPACING_PX:g} px)')
+    spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False) / math.sqrt(len(points))
+    if spread[1] < COLLINEAR_RATIO * spread[0]:
+        return (f'image {name} is degenerate: its corners are collinear (RMS spread {spread[0]:.1f} px '
+                f'along a line, {spread[1]:.3f} px across; allowed: at least {100 * COLLINEAR_RATIO:g} % '
+                'across)')
+    return ''
+
+
+def _duplicates(names, corners: np.ndarray) -> List[tuple]:
+    out = []
+    n = len(names)
+    for i in range(1, n):
+        same = np.sqrt(np.mean(np.sum((corners[:i] - corners[i]) ** 2, axis=-1), axis=-1))
+        rev = np.sqrt(np.mean(np.sum((corners[:i] - corners[i][::-1]) ** 2, axis=-1), axis=-1))
+        d = np.minimum(same, rev)
+        j = int(np.argmin(d))
+        if d[j] < DUPLICATE_RMS_PX:
+            out.append((names[i], names[j], float(d[j])))
+    return out
+
+
+def check_corner_set(corners: CornerSet, views: Optional[Sequence[int]] = None) -> CornerReport:
+    """Checks of ``views`` (all images by default) before any fit; raises CornersError (one line)
+    on the first of:
+
+    * a board declared transposed or with the wrong shape: in more than GRID_MAX_BAD_FRACTION of
+      the cells of the declared cols x rows grid the four corners are folded or flat
+      (``_bad_cells``) in some image, and another factorisation a x b of the corner count
+      (e.g. 15x9 for a declared 9x15) makes every image a sound grid: the error names it;
+    * a degenerate view, named: collapsed corners (median neighbour spacing below
+      COLLAPSED_SPACING_PX) or collinear ones (RMS spread across the principal line below
+      COLLINEAR_RATIO of that along it);
+    * a view whose corners do not form the declared grid and no other shape explains (corners
+      out of order, or many outliers), named.
+
+    Duplicate views (corners within DUPLICATE_RMS_PX RMS of an earlier view's, in the same or the
+    reversed order) are not an error: the report lists them with both names."""
+    views = list(range(len(corners))) if views is None else [int(v) for v in views]
+    board = corners.board
+    pts = corners.corners[views]
+    names = [corners.names[v] for v in views]
+    short = [os.path.basename(n) or n for n in names]
+    for name, p in zip(short, pts):
+        why = _degenerate(name, p, board)
+        if why:
+            raise CornersError(why)
+    failing = [i for i, p in enumerate(pts) if _not_grid(p, board.cols, board.rows)]
+    if failing:
+        alternatives = []
+        for a in range(2, board.count // 2 + 1):
+            b = board.count // a
+            if a * b != board.count or b < 2 or a == board.cols:
+                continue
+            bad = sum(_not_grid(p, a, b) for p in pts)
+            alternatives.append((bad, a, b))
+        best = min(alternatives, default=None)
+        if best is not None and best[0] == 0:
+            _, a, b = best
+            raise CornersError(
+                f'the corners of {len(failing)} of {len(pts)} images (e.g. {short[failing[0]]}) form a '
+                f'{a}x{b} grid, not the declared {board.size} board (COLSxROWS inner corners, '
+                f'row-major): allowed: the board they were detected with: give --board {a}x{b} or '
+                "fix the corners file's board")
+        i = failing[0]
+        bad = _bad_cells(pts[i], board.cols, board.rows)
+        cells = (board.cols - 1) * (board.rows - 1)
+        raise CornersError(
+            f'image {short[i]}: its corners do not form a {board.size} grid ({bad} of {cells} '
+            f'cells folded or flat; allowed: at most {100 * GRID_MAX_BAD_FRACTION:g} %): wrong board '
+            'size or corners out of row-major order')
+    return CornerReport(_duplicates(names, pts))

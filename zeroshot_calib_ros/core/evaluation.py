@@ -31,7 +31,7 @@ import numpy as np
 from .calibration import (METHOD_LABELS, CalibrationResult, calibrate, perspective_camera,
                           zero_shot_camera)
 from .camera_models import CameraModel, KannalaBrandtCamera, PlumbBobCamera, RadialCamera
-from .corners import CornerSet
+from .corners import CornerSet, check_corner_set
 from .pose import BoardPoses, board_poses
 from .spec import CameraSpec, SpecError
 
@@ -122,6 +122,17 @@ class ShotStudy:
         return [r for r in self.runs if not r.result.ok]
 
     @property
+    def retried_runs(self):
+        """Runs whose first OpenCV result was unsound and that a retry from a sound start gave."""
+        return [r for r in self.runs if r.result.ok and any(n.startswith('retried from')
+                                                            for n in r.result.notes)]
+
+    @property
+    def rejected(self):
+        """[(run, RejectedCorner)] of the FC runs' outlier corners."""
+        return [(r, c) for r in self.runs for c in r.result.rejected]
+
+    @property
     def gen_mean(self) -> float:
         ok = self.ok_runs
         return float(np.mean([r.gen for r in ok])) if ok else float('nan')
@@ -149,6 +160,9 @@ class Evaluation:
     reference: Optional[FullRow] = None
     reference_source: str = ''
     seconds: float = 0.0
+    input_notes: List[str] = field(default_factory=list)
+    """What the corner-set checks found that is not an error (duplicate views)."""
+    duplicates: List[tuple] = field(default_factory=list)
 
 
 def _full_row(key, corners, spec) -> FullRow:
@@ -195,6 +209,7 @@ def evaluate(corners: CornerSet, spec: Optional[CameraSpec] = None, shots: int =
         raise ValueError(f'shots = {shots!r} is invalid: allowed: 0 (no Table 4) to {n} '
                          '(the number of images)')
     runs = list(range(n)) if runs is None else list(runs)
+    report = check_corner_set(corners)  # a wrong board or a degenerate view: CornersError
     say = progress or (lambda message: None)
     full = {}
     for key in full_methods:
@@ -230,7 +245,7 @@ def evaluate(corners: CornerSet, spec: Optional[CameraSpec] = None, shots: int =
         ref_row = FullRow('reference', camera=reference)
         ref_row.error = reprojection_error(reference, corners)
     return Evaluation(name, corners, spec, spec_source, shots, full, studies, ref_row,
-                      reference_source, time.perf_counter() - t0)
+                      reference_source, time.perf_counter() - t0, report.notes, report.duplicates)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -308,7 +323,8 @@ def format_tables(ev: Evaluation) -> str:
                     cells.append('n/a')
                 else:
                     cells.append(f'{st.gen_mean:.2f} ({st.fit_mean:.2f})'
-                                 + (f' [{len(st.ok_runs)}/{len(st.runs)} ok]' if st.failed_runs else ''))
+                                 + (f' [{len(st.ok_runs)}/{len(st.runs)} ok]' if st.failed_runs else '')
+                                 + (f' [{len(st.retried_runs)} retried]' if st.retried_runs else ''))
             elif kind == 'full' and key in ev.full:
                 heads.append(f'{LABELS[key]}(N)' if key != 'zs' else 'ZS')
                 cells.append(_fmt(ev.full[key].rms, 0).strip())
@@ -329,6 +345,16 @@ def format_tables(ev: Evaluation) -> str:
                 names = ', '.join(f'{c.names[r.views[0]].split("/")[-1]}' for r in st.failed_runs)
                 out.append(f'failed   {st.label}: {len(st.failed_runs)} of {len(st.runs)} runs '
                            f'({names}); first error: {st.failed_runs[0].result.error}')
+            if st.retried_runs:
+                names = ', '.join(f'{c.names[r.views[0]].split("/")[-1]}' for r in st.retried_runs)
+                first = next(n for n in st.retried_runs[0].result.notes if n.startswith('retried from'))
+                out.append(f'retried  {st.label}: {len(st.retried_runs)} of {len(st.runs)} runs ({names}) '
+                           f'gave an unsound camera first, shown is the retry; first: {first}')
+            if st.rejected:
+                out.append(f'rejected {st.label}: {len(st.rejected)} outlier corner(s) in '
+                           f'{len({id(r) for r, _ in st.rejected})} runs: '
+                           + ', '.join(str(cr) for _, cr in st.rejected[:6])
+                           + (' ...' if len(st.rejected) > 6 else ''))
 
     out += ['', 'Full calibrations and cameras (intrinsics in px)']
     rows = [(LABELS[k], ev.full[k]) for k in FULL_METHODS if k in ev.full]
@@ -354,9 +380,11 @@ def format_tables(ev: Evaluation) -> str:
     notes = {}
     for row in ev.full.values():
         for note in row.notes:
-            notes.setdefault(note, []).append(row.label)
-    if notes:
-        out += [''] + [f'note     {", ".join(labels)}: {note}' for note, labels in notes.items()]
+            if note not in ev.input_notes:
+                notes.setdefault(note, []).append(row.label)
+    if notes or ev.input_notes:
+        out += [''] + [f'warning  {note}' for note in ev.input_notes]
+        out += [f'note     {", ".join(labels)}: {note}' for note, labels in notes.items()]
     out.append(f'time     {ev.seconds:.1f} s')
     return '\n'.join(out)
 
@@ -377,7 +405,8 @@ def evaluation_to_dict(ev: Evaluation) -> dict:
             d['unprojectable_corners'] = row.error.unprojectable
         if row.result is not None:
             d.update(own_rms=_finite(row.result.rms_px), opencv_rms=row.result.opencv_rms,
-                     init=row.result.init, fixed_principal_point=row.result.fixed_principal_point)
+                     init=row.result.init, fixed_principal_point=row.result.fixed_principal_point,
+                     rejected_corners=[r.to_dict() for r in row.result.rejected])
         return d
 
     def study_dict(st: ShotStudy):
@@ -386,9 +415,12 @@ def evaluation_to_dict(ev: Evaluation) -> dict:
             'eps_gen': _finite(st.gen_mean), 'eps_fit': _finite(st.fit_mean),
             'eps_gen_median': _finite(st.gen_median),
             'runs_total': len(st.runs), 'runs_ok': len(st.ok_runs), 'runs_failed': len(st.failed_runs),
+            'runs_retried': len(st.retried_runs),
             'runs': [{'images': [c.names[v] for v in r.views], 'ok': r.result.ok,
                       'error': r.result.error or None, 'eps_gen': _finite(r.gen), 'eps_fit': _finite(r.fit),
-                      'camera': _intrinsics(r.result.camera)} for r in st.runs],
+                      'camera': _intrinsics(r.result.camera), 'init': r.result.init,
+                      'notes': list(r.result.notes),
+                      'rejected_corners': [x.to_dict() for x in r.result.rejected]} for r in st.runs],
         }
 
     d = {
@@ -399,6 +431,7 @@ def evaluation_to_dict(ev: Evaluation) -> dict:
         'table3': {k: row_dict(r) for k, r in ev.full.items()},
         'table4': {k: study_dict(s) for k, s in ev.studies.items()},
         'seconds': ev.seconds,
+        'duplicate_views': [{'image': a, 'same_as': b, 'rms_difference_px': x} for a, b, x in ev.duplicates],
     }
     if ev.reference is not None:
         d['reference'] = dict(row_dict(ev.reference), source=ev.reference_source or None)
