@@ -198,6 +198,15 @@ class RegionOfInterest:
         return cls(**fields)
 
 
+def _check_text(kind: str, text):
+    """CalibrationFileError unless ``text`` is a str of a calibration file's size."""
+    if not isinstance(text, str):
+        raise CalibrationFileError(f'{kind} text = {_show(text)} is invalid: allowed: a str')
+    if len(text) > MAX_FILE_BYTES:
+        raise CalibrationFileError(f'the {kind} text is larger than {MAX_FILE_BYTES} bytes: allowed: '
+                                   'a camera calibration file (about 1 kB)')
+
+
 def _as_matrix(label: str, value, rows: int, cols: Optional[int] = None) -> np.ndarray:
     """``value`` as a float array of rows x cols (cols None: a vector), copied."""
     shape = f'{rows} x {cols}' if cols else 'a list of'
@@ -421,11 +430,7 @@ class CameraCalibration:
     @classmethod
     def from_yaml_text(cls, text: str) -> 'CameraCalibration':
         """Parse a calibration YAML document (CalibrationFileError if it is not a valid one)."""
-        if not isinstance(text, str):
-            raise CalibrationFileError(f'YAML text = {_show(text)} is invalid: allowed: a str')
-        if len(text) > MAX_FILE_BYTES:
-            raise CalibrationFileError(f'the YAML text is larger than {MAX_FILE_BYTES} bytes: allowed: '
-                                       'a camera calibration file (about 1 kB)')
+        _check_text('YAML', text)
         try:
             d = yaml.load(text, Loader=_YamlLoader)
         except CalibrationFileError:
@@ -522,11 +527,7 @@ class CameraCalibration:
     @classmethod
     def from_ini_text(cls, text: str) -> 'CameraCalibration':
         """Parse camera_calibration_parsers' INI (CalibrationFileError if it is not a valid one)."""
-        if not isinstance(text, str):
-            raise CalibrationFileError(f'INI text = {_show(text)} is invalid: allowed: a str')
-        if len(text) > MAX_FILE_BYTES:
-            raise CalibrationFileError(f'the INI text is larger than {MAX_FILE_BYTES} bytes: allowed: '
-                                       'a camera calibration file (about 1 kB)')
+        _check_text('INI', text)
         return _parse_ini(cls, text)
 
     # --- files --------------------------------------------------------------------------------
