@@ -263,12 +263,22 @@ def test_one_huge_frame_does_not_stall_the_stream(peer, start_node):
                    .split()[1])
     print(f'one-big-frame stream: {len(lost_info)} CameraInfo / {len(lost_rect)} image_rect lost of '
           f'{len(sent)} normal frames, longest gap {gap * 1e3:.0f} ms, node peak RSS {peak_kib / 1024:.0f} MiB')
-    # At most the frame or two right behind the 30 MB one in the transport (seen: 1, the next one);
-    # before the maps were built off the executor thread, 53 of 150 were lost and gaps reached 3.35 s.
-    assert len(lost_info) <= 2 and all(s - 10_000_000_000 in (31, 32, 33) for s in lost_info), lost_info
+    # Nothing is lost in the node: by its own counters (read >= 1 s after the last frame), every
+    # frame it received got its CameraInfo and every normal one its image_rect (the huge one waits
+    # for its maps). Frames it never received were lost in the transport, right behind the 30 MB
+    # one (the writer's depth-10 history overwrites frames queued behind it while it is delivered
+    # in fragments): seen 1 here, 3 on a busy machine. Before the maps were built off the executor
+    # thread, 53 of 150 were lost and gaps reached 3.35 s.
+    received = int(diagnostics_value(diagnostics, 'frames_received'))
+    assert int(diagnostics_value(diagnostics, 'camera_info_published')) == received
+    assert int(diagnostics_value(diagnostics, 'frames_rectified')) == received - 1
+    assert int(diagnostics_value(diagnostics, 'frames_skipped_maps_pending')) == 1
+    assert len(lost_info) == 150 - received, (lost_info, received)
+    assert all(31 <= s - 10_000_000_000 <= 40 for s in lost_info), lost_info
     assert lost_rect == lost_info
     assert gap < 1.0
-    peer.spin_until(lambda: 'rectification maps of 6400x4800 released' in node.log, timeout=20,
+    # the build itself takes ~8 s at low priority (longer on a busy machine), then 10 s unused
+    peer.spin_until(lambda: 'rectification maps of 6400x4800 released' in node.log, timeout=90,
                     what='the big maps released')
     assert float(diagnostics_value(diagnostics, 'map_memory_mb')) < 10
     assert node.alive()
