@@ -282,3 +282,24 @@ def test_one_huge_frame_does_not_stall_the_stream(peer, start_node):
                     what='the big maps released')
     assert float(diagnostics_value(diagnostics, 'map_memory_mb')) < 10
     assert node.alive()
+
+
+def test_a_frame_size_whose_maps_exceed_the_budget_is_counted_and_not_rectified(peer, start_node):
+    """max_map_memory_mb 20: the 1080p maps (11.9 MiB) fit, a 2560x1440 frame's (21.1 MiB) cannot
+    beside them. That frame still gets its (scaled) CameraInfo, is counted as maps_budget with the
+    reason logged, and the configured size keeps being rectified."""
+    node = start_node('--ros-args', *SPEC_1080, '-p', 'rectify:=true', '-p', 'max_map_memory_mb:=20')
+    infos = peer.collect(CameraInfo, 'camera_info', RELIABLE)
+    rects = peer.collect(Image, 'image_rect', RELIABLE)
+    diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
+    pub = peer.image_publisher(RELIABLE)
+    pub.publish(image_msg(np.zeros((1440, 2560), np.uint8), 'mono8', 11_000_000_000))
+    pub.publish(image_msg(np.zeros((1080, 1920), np.uint8), 'mono8', 12_000_000_000))
+    peer.spin_until(lambda: any(m.header.stamp.sec == 12 for m in rects), what='the 1080p frame rectified')
+    peer.spin_until(lambda: diagnostics_value(diagnostics, 'frames_skipped_maps_budget') == '1',
+                    what='the 2560x1440 frame counted')
+    big_info = next(m for m in infos if m.header.stamp.sec == 11)
+    assert (big_info.width, big_info.height) == (2560, 1440)
+    assert big_info.k[0] == pytest.approx(solve_zero_shot(CameraSpec(1920, 1080, 118, 69)).f * 2560 / 1920)
+    assert not any(m.header.stamp.sec == 11 for m in rects)
+    assert 'max_map_memory_mb = 20' in node.log and node.alive()

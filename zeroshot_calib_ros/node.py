@@ -49,8 +49,8 @@ from sensor_msgs.srv import SetCameraInfo
 from .core.calibration_file import (DISTORTION_MODELS, CalibrationFileError, CameraCalibration,
                                     RegionOfInterest, resolve_camera_info_url, solution_summary, summary_text)
 from .core.fitting import FIT_WARNING_PX
-from .core.image_frames import (ActiveCalibration, FrameSkipped, check_frame, check_map_budget,
-                                default_map_budget_mb, image_array, map_bytes)
+from .core.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded, check_frame,
+                                check_map_budget, default_map_budget_mb, image_array, map_bytes)
 from .core.rectify import INTERPOLATIONS
 from .core.solver import PROJECTION_CHOICES, NoConvergence, solve_zero_shot
 from .core.presets import spec_with_preset
@@ -314,9 +314,7 @@ class _MapBuilder:
             with self._cond:
                 if self._pending is job:
                     self._pending = None
-                if job.size is not None and not job.error:
-                    pass  # stays in _queued_sizes: built (or evicted later, then asked again)
-                elif job.size is not None:
+                if job.size is not None and job.error:  # a built size stays queued until released
                     self._queued_sizes.discard((id(job.active), *job.size))
             self._done(job)
 
@@ -607,8 +605,11 @@ class ZeroShotCalibNode(Node):
         if reason:
             raise FrameSkipped('binning_roi', reason)
         if (width, height) != active.size:
-            check_map_budget(width, height, self._map_budget_bytes - map_bytes(*active.size),
-                             what='rectification maps of this frame size (beside the configured size)')
+            try:
+                check_map_budget(width, height, self._map_budget_bytes - map_bytes(*active.size),
+                                 what='rectification maps of this frame size (beside the configured size)')
+            except MapBudgetExceeded as exc:
+                raise FrameSkipped('maps_budget', str(exc)) from None
             self._builder.request_size(active, width, height)
         raise FrameSkipped('maps_pending', f'rectification maps of {width}x{height} are being built; '
                            'frames of that size are not rectified until they are ready')

@@ -134,7 +134,6 @@ class ActiveCalibration:
     ``map_budget_bytes`` bounds the memory of all cached maps: the configured size must fit it
     (checked here, before anyone is told the calibration was adopted); other sizes evict the
     least recently used ones and are refused when they cannot fit.
-    A rectified camera P that cannot be inverted raises ValueError here, before any map is built.
     """
 
     def __init__(self, calibration: CameraCalibration, camera: CameraModel, source: str,
@@ -153,10 +152,7 @@ class ActiveCalibration:
         self._last_used: Dict[Tuple[int, int], float] = {}
         self._building: Dict[Tuple[int, int], threading.Event] = {}
         self._lock = threading.Lock()
-        P = np.asarray(calibration.P, dtype=float)[:3, :3]
-        if not (np.all(np.isfinite(P)) and abs(np.linalg.det(P)) > 0 and P[0, 0] > 0 and P[1, 1] > 0):
-            raise ValueError(f'P = {np.asarray(calibration.P).tolist()} is invalid: allowed: a projection '
-                             'matrix whose left 3x3 is invertible with positive focal lengths')
+        # P is usable for rectification whatever rectify is: CameraCalibration refuses any other
         if rectify:
             check_map_budget(calibration.width, calibration.height, map_budget_bytes)
         if build_maps:
