@@ -8,6 +8,7 @@ import os
 import tempfile
 
 import numpy as np
+import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings, strategies as st
 
@@ -153,23 +154,16 @@ def test_mutated_yaml_mappings():
     assert count['loaded'] > 0 and count['refused'] > 0
 
 
-def test_mutated_yaml_texts():
+@pytest.mark.parametrize('label, parse, sample, nasty', [
+    ('mutated YAML texts', CameraCalibration.from_yaml_text, YAML_FROM_CPP, NASTY),
+    ('mutated INI texts', CameraCalibration.from_ini_text, INI_FROM_CPP, NASTY_INI)])
+def test_mutated_texts(label, parse, sample, nasty):
     @settings(max_examples=1000, **SETTINGS)
-    @given(mutated_texts(YAML_FROM_CPP, NASTY))
+    @given(mutated_texts(sample, nasty))
     def check(count, text):
-        count[_check(CameraCalibration.from_yaml_text, text)] += 1
+        count[_check(parse, text)] += 1
 
-    count = _run('mutated YAML texts', lambda c: check(c))
-    assert count['loaded'] > 0 and count['refused'] > 0
-
-
-def test_mutated_ini_texts():
-    @settings(max_examples=1000, **SETTINGS)
-    @given(mutated_texts(INI_FROM_CPP, NASTY_INI))
-    def check(count, text):
-        count[_check(CameraCalibration.from_ini_text, text)] += 1
-
-    count = _run('mutated INI texts', lambda c: check(c))
+    count = _run(label, lambda c: check(c))
     assert count['loaded'] > 0 and count['refused'] > 0
 
 
