@@ -12,17 +12,30 @@ import time
 import numpy as np
 import pytest
 
+from zeroshot_calib_ros.core import calibration_file
 from zeroshot_calib_ros.core.calibration_file import (CalibrationFileError, CalibrationSaveError,
                                                       CameraCalibration, RegionOfInterest)
 
 from test_calibration_file import sample
 
 
+@pytest.fixture(params=['unnamed', 'named'])
+def temp_file(request, monkeypatch):
+    """Both ways a save can stage its content: an unnamed O_TMPFILE file that gets a name only
+    once complete (Linux), and the named temporary file used where the kernel or file system
+    cannot give one."""
+    if request.param == 'unnamed':
+        assert calibration_file._open_unnamed(os.getcwd(), 0o600)[0] is not None or sys.platform != 'linux'
+    else:
+        monkeypatch.setattr(calibration_file, '_open_unnamed', lambda directory, mode: (None, None))
+    return request.param
+
+
 def leftovers(directory, keep=()):
     return sorted(name for name in os.listdir(directory) if name not in keep)
 
 
-def test_symlinked_target_is_written_through(tmp_path):
+def test_symlinked_target_is_written_through(tmp_path, temp_file):
     real_dir = tmp_path / 'real'
     real_dir.mkdir()
     real = real_dir / 'cam.yaml'
@@ -52,7 +65,7 @@ def test_symlink_loop_is_refused(tmp_path):
     assert leftovers(tmp_path) == ['a.yaml', 'b.yaml']
 
 
-def test_existing_mode_is_kept_and_new_files_follow_the_umask(tmp_path):
+def test_existing_mode_is_kept_and_new_files_follow_the_umask(tmp_path, temp_file):
     path = tmp_path / 'cam.yaml'
     path.write_text('old')
     os.chmod(path, 0o604)
@@ -97,8 +110,11 @@ def test_missing_parent_directories_are_created(tmp_path):
     assert CameraCalibration.load(str(path)) == sample()
 
 
-@pytest.mark.parametrize('failing', ['write', 'fsync', 'replace', 'fchmod'])
-def test_a_failure_mid_save_keeps_the_old_file_and_removes_the_temp(tmp_path, monkeypatch, failing):
+@pytest.mark.parametrize('temp_file, failing',
+                         [('unnamed', 'link'), *[(kind, failing) for kind in ('unnamed', 'named')
+                                                 for failing in ('write', 'fsync', 'replace', 'fchmod')]],
+                         indirect=['temp_file'])
+def test_a_failure_mid_save_keeps_the_old_file_and_removes_the_temp(tmp_path, monkeypatch, failing, temp_file):
     path = tmp_path / 'cam.yaml'
     sample(camera_name='old').save(str(path))
     before = path.read_bytes()
@@ -116,13 +132,22 @@ def test_a_failure_mid_save_keeps_the_old_file_and_removes_the_temp(tmp_path, mo
     assert path.read_bytes() == before and leftovers(tmp_path) == ['cam.yaml']
 
 
-def test_an_unwritable_directory_names_the_target(tmp_path, monkeypatch):
+def test_an_unwritable_directory_names_the_target(tmp_path, monkeypatch, temp_file):
     import tempfile
 
     def refuse(*args, **kwargs):
         raise PermissionError(errno.EACCES, 'Permission denied')
 
-    monkeypatch.setattr(tempfile, 'mkstemp', refuse)  # as for a non-root user in a 0555 directory
+    real_open = os.open
+
+    def open_refusing_tmpfile(path, flags, *args, **kwargs):
+        if flags & getattr(os, 'O_TMPFILE', 0) == getattr(os, 'O_TMPFILE', -1):
+            refuse()
+        return real_open(path, flags, *args, **kwargs)
+
+    # as for a non-root user in a 0555 directory (root may write anywhere)
+    monkeypatch.setattr(tempfile, 'mkstemp', refuse)
+    monkeypatch.setattr(os, 'open', open_refusing_tmpfile)
     with pytest.raises(CalibrationSaveError, match='Permission denied') as excinfo:
         sample().save(str(tmp_path / 'cam.yaml'))
     assert str(tmp_path / 'cam.yaml') in str(excinfo.value) and excinfo.value.errno == errno.EACCES
@@ -170,10 +195,12 @@ def _writer(path, a, b, ready):
 KILLS = 30
 
 
-def test_kill_9_during_saves_leaves_a_or_b_and_no_temps(tmp_path, monkeypatch):
+def test_kill_9_during_saves_leaves_a_or_b_and_no_temps(tmp_path, monkeypatch, temp_file):
     """A child saving A and B in a tight loop is SIGKILLed at random moments. Each time the file
-    must be A or B completely. A kill between mkstemp and rename leaves that one temporary file
-    (no code runs on SIGKILL); the next save of the target removes it."""
+    must be A or B completely. No code runs on SIGKILL, so a kill after the temporary file got
+    its name and before the rename leaves that one file: with O_TMPFILE the content is written
+    and fsynced unnamed and only the link-rename pair of system calls is exposed; with a named
+    temporary file the whole write and fsync are. The next save of the target removes it."""
     a = sample(camera_name='calib_a')
     b = CameraCalibration(1280, 720, [[900.5, 0, 641.25], [0, 901.5, 359.75], [0, 0, 1]], 'equidistant',
                           [0.01, -0.002, 0.0003, -0.00004], np.eye(3),
@@ -206,5 +233,5 @@ def test_kill_9_during_saves_leaves_a_or_b_and_no_temps(tmp_path, monkeypatch):
     a.save(path)  # the next save sweeps the last killed writer's temporary file
     assert leftovers(tmp_path) == ['cam.yaml']
     print(f'\nkill -9 loop: {KILLS} kills; file was A {seen["calib_a"]} times, B {seen["calib_b"]} times, '
-          f'never torn; {sum(temps_after_kill)} kills left one temporary file (killed between mkstemp and '
-          'rename), each removed by the next save; 0 left at the end')
+          f'never torn; {temp_file} temporary file: {sum(temps_after_kill)} kills left one (killed after it '
+          'was named, before the rename), each removed by the next save; 0 left at the end')

@@ -12,9 +12,12 @@ from .camera_models import (CameraModel, KannalaBrandtCamera, PinholeCamera, Plu
                             ZeroShotCamera, camera_from_calibration)
 from .solver import ZeroShotSolution, solve_zero_shot, NoConvergence
 from .camera_info_model import CameraInfoModel
+from .calibration_file import CameraCalibration
+from .rectify import Rectifier
 
 __all__ = [
     'CameraSpec', 'SpecError', 'PROJECTIONS', 'FisheyeProjection', 'get_projection',
     'CameraModel', 'KannalaBrandtCamera', 'PinholeCamera', 'PlumbBobCamera', 'ZeroShotCamera',
     'camera_from_calibration', 'ZeroShotSolution', 'solve_zero_shot', 'NoConvergence', 'CameraInfoModel',
+    'CameraCalibration', 'Rectifier',
 ]

@@ -23,6 +23,7 @@ import contextlib
 import errno
 import math
 import os
+import random
 import re
 import stat
 import tempfile
@@ -540,8 +541,10 @@ class CameraCalibration:
 
         The content is built first, written to a temporary file in the target's directory,
         fsynced and renamed over the target; then the directory is fsynced. A crash at any
-        moment leaves the old or the new file, never a mix (a temporary file left by a killed
-        process is removed by the next save of the same target). Missing parent directories are
+        moment leaves the old or the new file, never a mix. On Linux the temporary file is
+        unnamed (O_TMPFILE) until its content is complete and on disk, so a killed writer leaves
+        a temporary file only if killed between naming it and the rename; the next save of the
+        same target removes such leftovers. Missing parent directories are
         created, as camera_info_manager does. A symlinked target is written through: the file it
         points to is replaced and the link stays. An existing file keeps its permission mode;
         one with no write permission at all (e.g. 0444) is refused rather than replaced, as
@@ -835,6 +838,40 @@ def _umask() -> int:
     return mask
 
 
+def _open_unnamed(directory: str, mode: int):
+    """An unnamed file in ``directory`` (Linux O_TMPFILE) and no name yet, or (None, None) where
+    the kernel, the file system or a missing /proc cannot give one: then a named temporary file
+    is used."""
+    flag = getattr(os, 'O_TMPFILE', 0)
+    if not flag or not os.path.isdir('/proc/self/fd'):
+        return None, None
+    try:
+        return os.open(directory, flag | os.O_WRONLY, mode), None
+    except OSError:
+        return None, None
+
+
+def _link_unnamed(fd: int, directory: str, prefix: str) -> str:
+    """Give the unnamed file ``fd`` a fresh temporary name (the pattern _remove_stale_temps knows)."""
+    # linkat(AT_SYMLINK_FOLLOW) on /proc/self/fd/N, as open(2) documents for O_TMPFILE. Python
+    # calls plain link(), which does not follow the magic link, unless a src_dir_fd is given.
+    proc_fd = os.open('/proc/self/fd', os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        for _ in range(100):
+            name = os.path.join(directory, prefix + ''.join(random.choices(_TEMP_CHARS, k=8)))
+            try:
+                os.link(str(fd), name, src_dir_fd=proc_fd, follow_symlinks=True)
+                return name
+            except FileExistsError:
+                continue
+    finally:
+        os.close(proc_fd)
+    raise FileExistsError(errno.EEXIST, 'no free temporary name')
+
+
+_TEMP_CHARS = 'abcdefghijklmnopqrstuvwxyz0123456789_'
+
+
 def _atomic_write(path: str, data: bytes):
     """Replace ``path`` by ``data`` atomically (see ``CameraCalibration.save``)."""
     target = os.path.realpath(path)
@@ -871,10 +908,12 @@ def _atomic_write(path: str, data: bytes):
             # only need write permission on the directory, so refuse as ofstream would.
             raise fail(f'the file is read-only (mode {mode:04o}): make it writable to replace it', errno.EACCES)
     _remove_stale_temps(directory, base)
-    try:
-        fd, temp = tempfile.mkstemp(prefix=_temp_prefix(base), dir=directory)
-    except OSError as exc:
-        raise fail(f'cannot create a file in {directory}: {exc.strerror}', exc.errno) from None
+    fd, temp = _open_unnamed(directory, mode)
+    if fd is None:
+        try:
+            fd, temp = tempfile.mkstemp(prefix=_temp_prefix(base), dir=directory)
+        except OSError as exc:
+            raise fail(f'cannot create a file in {directory}: {exc.strerror}', exc.errno) from None
     try:
         try:
             view = memoryview(data)
@@ -885,12 +924,17 @@ def _atomic_write(path: str, data: bytes):
                 with contextlib.suppress(OSError):  # only root may give the file back
                     os.fchown(fd, st.st_uid, st.st_gid)
             os.fsync(fd)
+            if temp is None:
+                # Only now, complete and on disk, does the content get a name: a writer killed
+                # before this point leaves nothing behind.
+                temp = _link_unnamed(fd, directory, _temp_prefix(base))
         finally:
             os.close(fd)
         os.replace(temp, target)
     except BaseException as exc:
-        with contextlib.suppress(OSError):
-            os.unlink(temp)
+        if temp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(temp)
         if isinstance(exc, OSError):
             raise fail(exc.strerror or type(exc).__name__, exc.errno) from None
         raise
@@ -1046,7 +1090,9 @@ def summary_text(summary: dict) -> str:
         f"D         {summary['distortion_model']} [{', '.join(f'{d:.9g}' for d in summary['D'])}]",
         f"fit error {summary['fit_error_px']:.2g} px (max over the image)",
         'FOV       ' + ', '.join(f"{k[0]} {'-' if summary[k] is None else format(summary[k], '.3f')}"
-                                 for k in ('hfov', 'vfov', 'dfov')) + ' deg (predicted; - : no ray)',
+                                 for k in ('hfov', 'vfov', 'dfov'))
+        + (' deg (predicted; - : no ray)' if None in (summary['hfov'], summary['vfov'], summary['dfov'])
+           else ' deg (predicted)'),
     ]
     for name, res in summary['dfov_residuals'].items():
         lines.append(f"  dfov residual {name:13s} {res:+.3f} deg" + ('  <- chosen' if name == summary['model'] else ''))
