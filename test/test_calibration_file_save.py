@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from zeroshot_calib_ros.core import calibration_file
+from zeroshot_calib_ros.core import atomic_file
 from zeroshot_calib_ros.core.calibration_file import (CalibrationFileError, CalibrationSaveError,
                                                       CameraCalibration, RegionOfInterest)
 
@@ -25,9 +25,9 @@ def temp_file(request, monkeypatch):
     once complete (Linux), and the named temporary file used where the kernel or file system
     cannot give one."""
     if request.param == 'unnamed':
-        assert calibration_file._open_unnamed(os.getcwd(), 0o600)[0] is not None or sys.platform != 'linux'
+        assert atomic_file._open_unnamed(os.getcwd(), 0o600)[0] is not None or sys.platform != 'linux'
     else:
-        monkeypatch.setattr(calibration_file, '_open_unnamed', lambda directory, mode: (None, None))
+        monkeypatch.setattr(atomic_file, '_open_unnamed', lambda directory, mode: (None, None))
     return request.param
 
 

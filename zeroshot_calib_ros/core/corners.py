@@ -44,6 +44,8 @@ from typing import List, Optional, Sequence
 import cv2
 import numpy as np
 
+from .atomic_file import write_atomically
+
 CORNERS_FORMAT = 'zeroshot-calib-corners'
 CORNERS_VERSION = 1
 MIN_CORNERS_PER_IMAGE = 6
@@ -165,13 +167,8 @@ class CornerSet:
         }
 
     def save(self, path: str):
-        directory = os.path.dirname(os.path.abspath(path))
-        os.makedirs(directory, exist_ok=True)
-        tmp = f'{path}.tmp{os.getpid()}'
-        with open(tmp, 'w') as f:
-            json.dump(self.to_dict(), f)
-            f.write('\n')
-        os.replace(tmp, path)
+        """Write the corners file all or nothing (atomic_file); SaveError names the target."""
+        write_atomically(path, (json.dumps(self.to_dict()) + '\n').encode('utf-8'))
 
     @classmethod
     def from_dict(cls, d, source: str = 'corners file') -> 'CornerSet':
