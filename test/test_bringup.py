@@ -4,8 +4,10 @@ file, in a namespace, with the package's params files from the install tree.
 launch_ros turns ``Node(name=..., namespace=..., parameters=[file, {dict}], remappings=[...])``
 into ``--ros-args -r __node:=NAME -r __ns:=/NS --params-file FILE --params-file TMP -r from:=to``,
 where TMP holds the dict under the ``/**`` key (launch_ros.actions.Node
-._create_params_file_from_dict). ``launch`` is not on PyPI, so where it is not importable this
-command line is built by hand; where it is, test_launch_file_runs_for_real runs the launch file.
+._create_params_file_from_dict). ``launch`` is not on PyPI, so where it is not importable the
+launch file is evaluated with stand-in launch modules that record its Node(...) (test_config.py)
+and this command line is built from what they recorded; where it is,
+test_launch_file_runs_for_real runs the launch file.
 """
 import importlib.util
 import subprocess
@@ -17,8 +19,10 @@ import yaml
 from rclpy.qos import ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
-from ros_peer import (LATCHED, REPO, domain_id, image_msg, peer, qos,  # noqa: F401
+from paper_table2 import load_table2
+from ros_peer import (LATCHED, NODE_EXECUTABLE, REPO, domain_id, image_msg, peer, qos,  # noqa: F401
                       ros_environment, start_node)
+from test_config import evaluate_launch_file, real_launch_is_importable
 from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
 
 SHARE = REPO / 'install' / 'zeroshot_calib_ros' / 'share' / 'zeroshot_calib_ros'
@@ -102,3 +106,56 @@ sys.exit(service.run())
     out = done.stdout + done.stderr
     assert 'zero-shot calibration from the spec sheet' in out and '/front/camera_info' in out, out
     assert 'error' not in out.lower(), out
+
+
+def launch_ros_command_line(tmp_path, node):
+    """What launch_ros.actions.Node gives the executable for the recorded Node(...) arguments:
+    its name and namespace, each parameters entry as a --params-file (a dict written under
+    ``/**``), then each remapping."""
+    args = ['--ros-args', '-r', f"__node:={node['name']}", '-r', f"__ns:={node['namespace']}"]
+    for i, entry in enumerate(node['parameters']):
+        if isinstance(entry, dict):
+            path = tmp_path / f'launch_params_{i}.yaml'
+            path.write_text(yaml.dump({'/**': {'ros__parameters': entry}}, default_flow_style=False))
+            entry = path
+        args += ['--params-file', str(entry)]
+    for source, target in node['remappings']:
+        args += ['-r', f'{source}:={target}']
+    return args
+
+
+@pytest.mark.parametrize('params_file, camera', [(None, 'Hero9(W1)'), ('c922.yaml', 'C922')],
+                         ids=['default', 'c922'])
+def test_launch_file_node_runs_as_launch_ros_starts_it(peer, start_node, tmp_path, monkeypatch,
+                                                       params_file, camera):
+    """`ros2 launch zeroshot_calib_ros zeroshot_calib.launch.py namespace:=front
+    image:=/front/image_raw rectify:=true [params_file:=...]` without `launch`: the launch file's
+    Node(...) with these arguments, turned into launch_ros' command line for the installed
+    executable; /front/camera_info comes with the paper's f* and the file's frame_id."""
+    if real_launch_is_importable():
+        pytest.skip('launch is importable: test_launch_file_runs_for_real runs the launch file itself')
+    from ament_index_python.packages import get_package_prefix
+    arguments = {'namespace': 'front', 'image': '/front/image_raw', 'rectify': 'true'}
+    if params_file:
+        arguments['params_file'] = str(SHARE / 'config' / params_file)
+    node = evaluate_launch_file(monkeypatch, arguments)  # the real ament_index_python: the install tree
+    installed = SHARE / 'config' / (params_file or 'hero9_w1.yaml')
+    assert node['parameters'] == [str(installed), {'rectify': True}]
+    # launch_ros runs <prefix of package>/lib/<package>/<executable>, as `ros2 run`
+    executable = f"{get_package_prefix(node['package'])}/lib/{node['package']}/{node['executable']}"
+    assert executable == str(NODE_EXECUTABLE)
+    process = start_node(*launch_ros_command_line(tmp_path, node))
+    infos = peer.collect(CameraInfo, '/front/camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='/front/camera_info')
+    p = next(iter(yaml.safe_load(installed.read_text()).values()))['ros__parameters']
+    row = next(r for r in load_table2() if r['camera'] == camera)
+    assert (infos[-1].width, infos[-1].height) == (row['width'], row['height'])
+    assert infos[-1].k[0] == pytest.approx(row['f_star'], abs=0.1)
+    assert (infos[-1].header.frame_id, infos[-1].distortion_model) == (p['frame_id'], p['distortion_model'])
+    # rectify:=true reached the node, and image_raw is remapped
+    peer.spin_until(lambda: peer.node.get_publishers_info_by_topic('/front/image_rect'), timeout=10,
+                    what='/front/image_rect advertised')
+    peer.spin_until(lambda: any(i.node_name == 'zeroshot_calib' and i.node_namespace == '/front'
+                                for i in peer.node.get_subscriptions_info_by_topic('/front/image_raw')),
+                    timeout=10, what='/front/image_raw subscribed')
+    assert process.alive()

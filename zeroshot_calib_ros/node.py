@@ -358,6 +358,10 @@ def _binned_roi_size(calibration: CameraCalibration) -> Tuple[int, int]:
     return width // max(1, calibration.binning_x), height // max(1, calibration.binning_y)
 
 
+_TYPE_TEXT = {ParameterType.PARAMETER_BOOL: 'true or false', ParameterType.PARAMETER_INTEGER: 'an integer',
+              ParameterType.PARAMETER_DOUBLE: 'a number', ParameterType.PARAMETER_STRING: 'a string'}
+
+
 class _AtomicParameterService(ParameterService):
     """rclpy's parameter services, except that one SetParameters request (``ros2 param set``,
     ``ros2 param load``) is one change: validated together, solved once, adopted whole or
@@ -374,13 +378,34 @@ class _AtomicParameterService(ParameterService):
                     node.get_parameter(param.name).value == param.value:
                 unchanged.add(i)
         changes = [p for i, p in enumerate(parameters) if i not in unchanged]
+        wrong_type = next((text for text in map(self._wrong_type, changes) if text), None)
         try:
-            result = node.set_parameters_atomically(changes) if changes else SetParametersResult(successful=True)
+            if wrong_type:  # rclpy's reason would not name the parameter
+                result = SetParametersResult(successful=False, reason=wrong_type)
+            else:
+                result = node.set_parameters_atomically(changes) if changes else SetParametersResult(successful=True)
         except ParameterNotDeclaredException as exc:
             result = SetParametersResult(successful=False, reason=f'{exc}: the whole request was rejected')
+        # Whole: a rejected request rejects its unchanged read-only values too, so that no client
+        # reads one result as "this part was applied".
         response.results = [SetParametersResult(successful=True, reason='unchanged (read-only)')
-                            if i in unchanged else result for i in range(len(parameters))]
+                            if i in unchanged and result.successful else result for i in range(len(parameters))]
         return response
+
+    def _wrong_type(self, param: Parameter) -> str:
+        """The reason a value of the wrong type for a statically typed parameter is rejected, naming
+        the parameter as the node's own checks do ('' if the type is right or rclpy decides)."""
+        node = self._get_node()
+        if not node.has_parameter(param.name):
+            return ''
+        descriptor = node.describe_parameter(param.name)
+        if descriptor.dynamic_typing or descriptor.read_only or param.type_.value == descriptor.type:
+            return ''
+        value = param.value if not hasattr(param.value, 'tolist') else param.value.tolist()
+        allowed = _TYPE_TEXT.get(descriptor.type, Parameter.Type(descriptor.type).name.lower())
+        if descriptor.additional_constraints:
+            allowed += f' ({descriptor.additional_constraints})'
+        return f'{param.name} = {value!r} is invalid: allowed: {allowed}'
 
 
 class ZeroShotCalibNode(Node):
@@ -712,10 +737,13 @@ class ZeroShotCalibNode(Node):
                 active, summary = solve_from_settings(settings, generation, build_maps=False,
                                                       map_budget_bytes=self._map_budget_bytes)
             else:  # a file / set_camera_info calibration stays; only P or the maps change
-                active = ActiveCalibration(basis.calibration, basis.camera, basis.source, generation,
+                new_p = bool(names & {'balance', 'fov_scale'})
+                # with_rectification numbers its result one after the calibration it starts from
+                active = ActiveCalibration(basis.calibration, basis.camera, basis.source,
+                                           generation - 1 if new_p else generation,
                                            settings.rectify, settings.interpolation, build_maps=False,
                                            map_budget_bytes=self._map_budget_bytes)
-                if names & {'balance', 'fov_scale'}:
+                if new_p:
                     active = active.with_rectification(settings.balance, settings.fov_scale, build_maps=False)
         except (SpecError, CalibrationFileError, NoConvergence, ValueError) as exc:
             self.get_logger().warning(f'parameter change rejected, calibration unchanged: {exc}')
