@@ -198,11 +198,36 @@ def test_opencv_fisheye_failures_are_reported_not_raised(monkeypatch):
     assert 'cv2.fisheye.calibrate raised' in result.error and 'InitExtrinsics' in result.error
 
 
+# OpenCV's documented values of the fisheye calibration flags we use: 4.x's cv::fisheye enum
+# (calib3d.hpp: CALIB_USE_INTRINSIC_GUESS = 1 << 0, CALIB_RECOMPUTE_EXTRINSIC = 1 << 1,
+# CALIB_FIX_SKEW = 1 << 3) and 5.x's shared cv::CALIB_* enum (calib.hpp, "fisheye only flags":
+# CALIB_RECOMPUTE_EXTRINSIC = 1 << 23, CALIB_FIX_SKEW = 1 << 25; CALIB_USE_INTRINSIC_GUESS = 1).
+DOCUMENTED_FISHEYE_FLAGS = {
+    4: {'CALIB_USE_INTRINSIC_GUESS': 1, 'CALIB_RECOMPUTE_EXTRINSIC': 1 << 1, 'CALIB_FIX_SKEW': 1 << 3},
+    5: {'CALIB_USE_INTRINSIC_GUESS': 1, 'CALIB_RECOMPUTE_EXTRINSIC': 1 << 23, 'CALIB_FIX_SKEW': 1 << 25},
+}
+
+
 def test_opencv_fisheye_flags_resolve_on_this_opencv():
-    for name in ('CALIB_RECOMPUTE_EXTRINSIC', 'CALIB_FIX_SKEW', 'CALIB_USE_INTRINSIC_GUESS'):
-        value = opencv_fisheye_flag(name)
-        legacy = getattr(getattr(cv2, 'fisheye', None), name, None)
-        assert value == (legacy if legacy is not None else getattr(cv2, name))
+    major = int(cv2.__version__.split('.')[0])
+    assert major in DOCUMENTED_FISHEYE_FLAGS, f'OpenCV {cv2.__version__}: check its documented fisheye flags'
+    for name, value in DOCUMENTED_FISHEYE_FLAGS[major].items():
+        assert opencv_fisheye_flag(name) == value, name
+
+
+def test_opencv_fisheye_flags_do_what_they_are_named_for():
+    """Passed to cv2.fisheye.calibrate on this OpenCV, the resolved CALIB_FIX_SKEW keeps K's
+    skew at exactly 0 (without it OpenCV fits one, which our KannalaBrandtCamera would drop)."""
+    corners = synthetic_corners(TRUE, 6, noise=0.3, seed=13)
+    obj = [corners.object_points().reshape(1, -1, 3)] * len(corners)
+    img = [c.reshape(1, -1, 2) for c in corners.corners]
+    recompute = opencv_fisheye_flag('CALIB_RECOMPUTE_EXTRINSIC')
+
+    def skew(flags):
+        K = cv2.fisheye.calibrate(obj, img, (W, H), np.zeros((3, 3)), np.zeros((4, 1)), flags=flags)[1]
+        return K[0, 1]
+    assert skew(recompute | opencv_fisheye_flag('CALIB_FIX_SKEW')) == 0.0
+    assert skew(recompute) != 0.0
 
 
 def test_opencv_fisheye_flags_prefer_the_4x_fisheye_namespace(monkeypatch):
@@ -380,6 +405,36 @@ def test_cli_calibrate_single_shot_with_spec(corners_file, capsys):
     out = capsys.readouterr().out
     assert 'FC_eq.d.+ZS (start: zero-shot), principal point fixed' in out
     assert 'images    1 (view-03.png)' in out and 'eps all' in out
+
+
+@pytest.mark.parametrize('spec_args', [['--hfov', '150', '--vfov', '95'], []],
+                         ids=['rounded-spec-sheet', 'no-spec'])
+def test_cli_single_shot_recovers_the_known_camera_and_eps_all_is_the_results(tmp_path, capsys, spec_args):
+    """`calibrate --single IMG` on corners of a known camera (f 300 px, w f = 1.05, centred; 0.2 px
+    noise): f and w of the result are the truth's, and `eps_all_px` is eq. 20 of the RESULT
+    camera on all images, recomputed with OpenCV only (PnP + cv2.fisheye.projectPoints on the
+    printed K, D). The start camera (a spec sheet 9 and 2.5 degrees off, or the default 180-degree
+    fisheye) explains the images far worse (1.35 px and more), so its eq. 20 would not pass."""
+    from opencv_reference import board_points, eq20_squared_errors, rms
+    corners = synthetic_corners(CENTRED, 6, noise=0.2, seed=31)
+    path = tmp_path / 'corners.json'
+    corners.save(str(path))
+    assert main(['calibrate', '--corners', str(path), '--single', 'view-02.png', *spec_args, '--json']) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record['images'] == 1 and record['image_names'] == ['view-02.png']
+    assert record['init'] == ('zero-shot' if spec_args else 'default')
+    assert record['f'] == pytest.approx(CENTRED.f, rel=0.01)
+    assert record['omega'] == pytest.approx(CENTRED.omega, rel=0.01)
+    assert (record['cx'], record['cy']) == (W / 2, H / 2)  # single shot: principal point fixed
+    assert record['distortion_model'] == 'equidistant' and record['fit_error_px'] < 0.005
+    obj = board_points(BOARD.cols, BOARD.rows, BOARD.square)
+    eps_all = rms(eq20_squared_errors('equidistant', record['K'], record['D'], obj, corners.corners))
+    assert record['eps_all_px'] == pytest.approx(eps_all, abs=1e-3)
+    assert 0.2 < eps_all < 0.35  # about the noise: the result explains all six images
+    # the printed text says the same
+    assert main(['calibrate', '--corners', str(path), '--single', 'view-02.png', *spec_args]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith('eps all'))
+    assert line == f"eps all   {record['eps_all_px']:.4f} px (eq. 20 on all 6 images)"
 
 
 def test_cli_evaluate_prints_both_tables(corners_file, capsys):

@@ -6,6 +6,7 @@ ost.yaml.
 """
 import json
 import math
+import re
 from pathlib import Path
 
 import cv2
@@ -13,10 +14,12 @@ import numpy as np
 import pytest
 import yaml
 
+from opencv_reference import board_points, eq20_squared_errors, rms
 from test_calibration import BOARD, CENTRED, TRUE, spec_of, synthetic_corners
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import KannalaBrandtCamera, PlumbBobCamera, ZeroShotCamera
-from zeroshot_calib_ros.core.calibration import calibrate
+from zeroshot_calib_ros.core.calibration import as_solution, calibrate
+from zeroshot_calib_ros.core.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.corners import Board, detect_corners
 from zeroshot_calib_ros.core.evaluation import (evaluate, evaluation_to_dict, format_tables,
                                                 reprojection_error)
@@ -210,3 +213,54 @@ def test_cli_calibrate_on_the_shared_images(authors_camera, tmp_path, capsys):
     assert record['images'] == 24 and record['f'] == pytest.approx(authors_camera.fx, rel=0.01)
     saved = yaml.safe_load(out.read_text())
     assert saved['distortion_model'] == 'equidistant' and saved['image_width'] == 800
+
+
+# -------------------------------------------------------------------------------------------------
+# The printed Table 4 against an independent computation (OpenCV projection and PnP)
+
+
+def _table4_cells(text):
+    """{column label: printed cell} of the Table 4 layout in ``format_tables`` output."""
+    lines = text.splitlines()
+    i = next(i for i, line in enumerate(lines) if line.startswith('Table 4 layout'))
+    heads = re.split(r'\s{2,}', lines[i + 1].strip())[2:]
+    cells = re.split(r'\s{2,}', lines[i + 2].strip())[2:]
+    assert len(heads) == len(cells), (heads, cells)
+    return dict(zip(heads, cells))
+
+
+def test_cli_table4_prints_eps_gen_then_eps_fit_as_opencv_computes_them(tmp_path, capsys):
+    """Eqs. 21-22 recomputed without our code: each single-shot camera (OpenCV's own Zhang and
+    fisheye results, and FC_eq.d. as its equidistant K, D) is evaluated with OpenCV PnP and
+    cv2(.fisheye).projectPoints: eps_gen over all N images, eps_fit on the one image it was
+    calibrated on, both averaged over the runs. On noisy corners a single image is over-fitted,
+    so eps_gen > eps_fit (Zhang(1): 3.2 against 0.5) and the order in 'eps_gen (eps_fit)' shows."""
+    corners = synthetic_corners(CENTRED, 6, noise=0.3, seed=21)
+    path = tmp_path / 'corners.json'
+    corners.save(str(path))
+    spec = spec_of(CENTRED)
+    assert main(['evaluate', '--corners', str(path), '--hfov', str(spec.hfov), '--vfov', str(spec.vfov),
+                 '--runs', '3']) == 0
+    cells = _table4_cells(capsys.readouterr().out)
+    obj = board_points(BOARD.cols, BOARD.rows, BOARD.square)
+    for label, method in [('FC_eq.d.(1)', 'fc'), ('Zhang(1)', 'zhang'), ('OpenCV fisheye(1)', 'fisheye')]:
+        gens, fits = [], []
+        for k in (0, 1, 2):  # --runs 3: the single-shot runs on images 0, 1 and 2 (a mean, not a median)
+            result = calibrate(corners, method, views=[k], spec=spec)
+            assert result.ok
+            if method == 'fc':
+                calibration, fit = CameraCalibration.from_solution(as_solution(result))
+                assert fit.max_error_px < 0.005
+                model, K, D = 'equidistant', calibration.K, calibration.D
+            else:
+                model, K, D = result.camera.distortion_model, result.camera.K, result.camera.D
+            sq = eq20_squared_errors(model, K, D, obj, corners.corners)
+            gens.append(rms(sq))
+            fits.append(rms(sq[k]))
+        gen, fit = np.mean(gens), np.mean(fits)
+        assert gen > fit + 0.02, (label, gen, fit)  # the test can tell them apart at 2 decimals
+        match = re.fullmatch(r'(\d+\.\d\d) \((\d+\.\d\d)\)', cells[label])
+        assert match, (label, cells[label])
+        printed_gen, printed_fit = float(match.group(1)), float(match.group(2))
+        assert abs(printed_gen - gen) <= 0.006 and abs(printed_fit - fit) <= 0.006, \
+            (label, cells[label], gen, fit)

@@ -4,21 +4,84 @@ import numpy as np
 import pytest
 
 from synthetic import find_corners, line_residuals, render_checkerboard
-from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
+from zeroshot_calib_ros.core import CameraSpec, KannalaBrandtCamera, solve_zero_shot
+from zeroshot_calib_ros.core.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.fitting import fit_kannala_brandt
+from zeroshot_calib_ros.core.image_frames import ENCODINGS, ActiveCalibration, image_array
 from zeroshot_calib_ros.core.rectify import Rectifier, new_camera_matrix
 
 HERO9_W1 = CameraSpec(1920, 1080, 118, 69)
 
 
-@pytest.mark.parametrize('balance, fov_scale', [(0.0, 1.0), (1.0, 1.0), (0.5, 1.3), (0.2, 0.8)])
-def test_new_camera_matrix_means_what_opencv_means(balance, fov_scale):
-    solution = solve_zero_shot(HERO9_W1)
+GRID = [(b, s) for b in (0.0, 0.5, 1.0) for s in (0.5, 1.0, 2.0)] + [(0.5, 1.3), (0.2, 0.8)]
+SPECS = {'hero9-w1': HERO9_W1, 'c922': CameraSpec(1280, 720, 70.42, 43.3), 'm2026': CameraSpec(1280, 720, 130, 73)}
+
+
+@pytest.mark.parametrize('balance, fov_scale', GRID)
+@pytest.mark.parametrize('name', SPECS)
+def test_every_P_means_what_opencv_means(name, balance, fov_scale):
+    """P of the rectified camera, wherever it is made (new_camera_matrix; the CameraInfo /
+    calibration file record, CameraCalibration.from_solution; the node's run-time change of
+    balance / fov_scale, ActiveCalibration.with_rectification), is what
+    cv2.fisheye.estimateNewCameraMatrixForUndistortRectify gives for the same K, D, balance
+    and fov_scale."""
+    spec = SPECS[name]
+    solution = solve_zero_shot(spec)
     D = fit_kannala_brandt(solution.camera).D
-    ours = new_camera_matrix(solution.camera, balance, fov_scale)
     theirs = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(
-        solution.K, D, (1920, 1080), np.eye(3), balance=balance, fov_scale=fov_scale)
-    assert np.abs(ours - theirs).max() < 1e-3
+        solution.K, D, (spec.width, spec.height), np.eye(3), balance=balance, fov_scale=fov_scale)
+    ours = new_camera_matrix(solution.camera, balance, fov_scale)
+    np.testing.assert_allclose(ours, theirs, atol=2e-3)
+    calibration, _ = CameraCalibration.from_solution(solution, 'equidistant', balance, fov_scale)
+    np.testing.assert_allclose(calibration.P[:, :3], theirs, atol=2e-3)
+    assert np.all(calibration.P[:, 3] == 0)
+    default, _ = CameraCalibration.from_solution(solution)  # balance 0, fov_scale 1
+    changed = ActiveCalibration(default, solution.camera, 'spec').with_rectification(
+        balance, fov_scale, build_maps=False)
+    np.testing.assert_allclose(changed.calibration.P[:, :3], theirs, atol=2e-3)
+    np.testing.assert_array_equal(changed.calibration.K, default.K)
+
+
+def _opencv_new_camera_matrix(K, D, size, balance, fov_scale, typo):
+    """cv2.fisheye.estimateNewCameraMatrixForUndistortRectify (R = I, same size) line by line,
+    on cv2.fisheye.undistortPoints: as fixed upstream (opencv/opencv#22604, in OpenCV 5.0) or,
+    ``typo``, as OpenCV 4.6 has it (the centre's x scaled by fx / fy instead of its y,
+    opencv/opencv#22537). Which one the installed OpenCV is gets checked against cv2 itself."""
+    w, h = size
+    edges = np.array([[[w // 2, 0]], [[w, h // 2]], [[w // 2, h]], [[0, h // 2]]], np.float64)
+    pts = cv2.fisheye.undistortPoints(edges, K, D).reshape(-1, 2)
+    cn = pts.mean(axis=0)
+    aspect = K[0, 0] / K[1, 1]
+    cn[0 if typo else 1] *= aspect
+    pts[:, 1] *= aspect
+    (minx, miny), (maxx, maxy) = pts.min(axis=0), pts.max(axis=0)
+    focals = [w * 0.5 / (cn[0] - minx), w * 0.5 / (maxx - cn[0]),
+              h * 0.5 * aspect / (cn[1] - miny), h * 0.5 * aspect / (maxy - cn[1])]
+    f = (balance * min(focals) + (1.0 - balance) * max(focals)) / fov_scale
+    c = -cn * f + np.array([w, h * aspect]) * 0.5
+    return np.array([[f, 0.0, c[0]], [0.0, f / aspect, c[1] / aspect], [0.0, 0.0, 1.0]])
+
+
+@pytest.mark.parametrize('balance, fov_scale', GRID)
+def test_P_of_an_off_centre_kannala_brandt_camera_is_opencvs(balance, fov_scale):
+    """A calibration file's camera (principal point off the centre, fx != fy): P is OpenCV's
+    for the same K, D. OpenCV 4.6 (Ubuntu 24.04's) has a typo there that shifts P's principal
+    point by 0.25 px for this camera (opencv/opencv#22537); P follows the fixed OpenCV (5.0)."""
+    K = np.array([[610.0, 0.0, 655.3], [0.0, 604.0, 349.1], [0.0, 0.0, 1.0]])
+    D = np.array([0.05, -0.012, 0.004, -0.0007]).reshape(4, 1)
+    camera = KannalaBrandtCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], 1280, 720, D)
+    theirs = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(
+        K, D, (1280, 720), np.eye(3), balance=balance, fov_scale=fov_scale)
+    fixed = _opencv_new_camera_matrix(K, D, (1280, 720), balance, fov_scale, typo=False)
+    typo = _opencv_new_camera_matrix(K, D, (1280, 720), balance, fov_scale, typo=True)
+    assert np.abs(fixed - typo).max() > 0.1  # this camera tells the two apart
+    opencv_is_fixed = np.abs(theirs - fixed).max() < 1e-6
+    assert opencv_is_fixed or np.abs(theirs - typo).max() < 1e-6  # the port is line for line OpenCV's
+    if int(cv2.__version__.split('.')[0]) >= 5:
+        assert opencv_is_fixed
+    np.testing.assert_allclose(new_camera_matrix(camera, balance, fov_scale), fixed, atol=1e-6)
+    if opencv_is_fixed:
+        np.testing.assert_allclose(new_camera_matrix(camera, balance, fov_scale), theirs, atol=1e-6)
 
 
 def test_balance_and_fov_scale_are_checked():
@@ -78,3 +141,43 @@ def test_interpolation_is_checked(interpolation):
     camera = solve_zero_shot(CameraSpec(64, 36, 118, 69)).camera
     with pytest.raises(ValueError, match='interpolation'):
         Rectifier(camera, interpolation=interpolation)
+
+
+@pytest.mark.parametrize('encoding', list(ENCODINGS))
+def test_every_encoding_is_rectified_channel_by_channel_as_opencv_remaps_it(encoding):
+    """Each supported encoding, as the node receives it (message bytes with row padding, through
+    image_array) and rectifies it (ActiveCalibration of a calibration file, balance 1 so there is
+    a border): the WHOLE image equals cv2.remap of every channel on its own, with the maps of
+    cv2.fisheye.initUndistortRectifyMap for the file's K, D, P (converted to fixed point as
+    image_proc's): channels in their order, 16 bits kept, float images NaN where no pixel was
+    seen (image_proc), other types 0. Textures differ in every channel and use the whole range."""
+    from opencv_reference import textured_image
+    w, h = 192, 108
+    dtype, channels = ENCODINGS[encoding]
+    calibration, _ = CameraCalibration.from_solution(solve_zero_shot(CameraSpec(w, h, 118, 69)), balance=1.0)
+    _, rectifier = ActiveCalibration(calibration, calibration.camera(), 'file', rectify=True).for_size(w, h)
+    image = textured_image(w, h, channels, dtype, seed=len(encoding), smooth=False)
+    row = w * channels * dtype.itemsize
+    step = row + 2 * dtype.itemsize
+    data = np.zeros((h, step), np.uint8)
+    data[:, :row] = image.reshape(h, -1).view(np.uint8)
+    out = rectifier.rectify(image_array(data.tobytes(), w, h, step, encoding))
+
+    mx, my = cv2.fisheye.initUndistortRectifyMap(calibration.K, calibration.D.reshape(4, 1), np.eye(3),
+                                                 calibration.P[:3, :3], (w, h), cv2.CV_32FC1)
+    map1, map2 = cv2.convertMaps(mx, my, cv2.CV_16SC2)
+    border = float('nan') if dtype.kind == 'f' else 0
+    planes = [image] if channels == 1 else [np.ascontiguousarray(image[..., c]) for c in range(channels)]
+    expected = [cv2.remap(p, map1, map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=border)
+                for p in planes]
+    expected = expected[0] if channels == 1 else np.stack(expected, axis=-1)
+    assert out.dtype == dtype and out.shape == expected.shape
+    np.testing.assert_array_equal(out, expected)  # NaN where NaN is expected, nowhere else
+    unseen = (mx < -1) | (mx > w) | (my < -1) | (my > h)
+    assert unseen.mean() > 0.05  # there is a border
+    if dtype.kind == 'f':
+        seen = (mx > 1) & (mx < w - 2) & (my > 1) & (my < h - 2)
+        assert np.isnan(out[unseen]).all() and not np.isnan(out[seen]).any()
+    else:
+        assert (out[unseen] == 0).all()
+        assert out.max() > 0.9 * np.iinfo(dtype).max  # the whole range survives (16 bits not cut to 8)

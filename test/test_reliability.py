@@ -132,6 +132,7 @@ def test_inconsistent_fov_triples_are_rejected_or_valid(fovs, must_reject):
     try:
         active, _ = solve_from_settings(Settings.from_values(values), 1, build_maps=False)
     except EXPECTED_REJECTIONS as exc:
+        assert must_reject, (fovs, exc)  # a valid triple must give a camera
         assert str(exc).strip()
         return
     assert not must_reject, fovs

@@ -200,3 +200,61 @@ def test_invalid_spec_names_field_value_and_range(kwargs, field, allowed):
 def test_unknown_projection_is_refused():
     with pytest.raises(SpecError, match='projection = .fisheye.* allowed: auto, equidistant'):
         solve_zero_shot(CameraSpec(1280, 720, 90, 60), projection='fisheye')
+
+
+# The cases of test_reliability.py::test_inconsistent_fov_triples_are_rejected_or_valid, each with
+# its expected outcome (that test returns from its except branch before looking at must_reject),
+# on the calls the node makes for them (node.solve_from_settings: solve_zero_shot, then
+# CameraCalibration.from_solution with the node's defaults; rectify true builds the maps from P).
+@pytest.mark.parametrize('fovs', [dict(hfov=118.0, vfov=69.0, dfov=100.0), dict(hfov=118.0, vfov=69.0, dfov=69.0),
+                                  dict(hfov=118.0, dfov=118.0)], ids=['d-narrower', 'd-equals-v', 'd-equals-h'])
+def test_a_diagonal_not_wider_than_hfov_is_rejected_naming_dfov(fovs):
+    with pytest.raises(SpecError) as err:
+        solve_zero_shot(CameraSpec(1920, 1080, **fovs))
+    assert err.value.field == 'dfov'
+    assert str(err.value) == (f"dfov = {fovs['dfov']} is invalid: the diagonal field of view must be the widest; "
+                              'allowed: greater than hfov = 118 degrees')
+
+
+def _node_calibration(solution):
+    from zeroshot_calib_ros.core.calibration_file import CameraCalibration
+    from zeroshot_calib_ros.core.image_frames import ActiveCalibration
+    calibration, fit = CameraCalibration.from_solution(solution)
+    ActiveCalibration(calibration, solution.camera, 'spec', rectify=True)  # maps built from P
+    for value in (*calibration.K.ravel(), *calibration.D, *calibration.P.ravel()):
+        assert math.isfinite(value)
+    return calibration, fit
+
+
+def test_vfov_wider_than_hfov_on_16_9_is_accepted_as_the_mean_perspective_focal():
+    """hfov 60 / vfov 90 on 1920 x 1080 is pincushion-like: no barrel root, w = 0 and the mean
+    of the two perspective focals (as the paper's Hero9(L) row)."""
+    solution = solve_zero_shot(CameraSpec(1920, 1080, 60.0, 90.0))
+    assert solution.omega == 0 and not solution.root_found
+    assert solution.f == pytest.approx((960 / _tan_half(60) + 540 / _tan_half(90)) / 2, rel=1e-14)
+    calibration, fit = _node_calibration(solution)
+    assert calibration.K[0, 0] == solution.f and fit.max_error_px < 0.01
+
+
+def test_vfov_and_dfov_alone_with_no_root_are_accepted_as_the_mean_perspective_focal():
+    """vfov 150 / dfov 151 on 1920 x 1080: no barrel root either; f is the mean of the vfov and
+    dfov perspective focals (H/2 / tan(vfov/2), (diagonal/2) / tan(dfov/2))."""
+    solution = solve_zero_shot(CameraSpec(1920, 1080, vfov=150.0, dfov=151.0))
+    assert solution.omega == 0 and not solution.root_found
+    f_v, f_d = 540 / _tan_half(150), math.hypot(960, 540) / _tan_half(151)
+    assert solution.f == pytest.approx((f_v + f_d) / 2, rel=1e-12)
+    _node_calibration(solution)
+
+
+def test_a_wildly_wide_and_flat_triple_is_accepted_and_reproduces_hfov_and_vfov():
+    """hfov 170 / vfov 20 / dfov 171: the corners are beyond 90 degrees, so auto takes the wide
+    model; of the three laws the dfov picks stereographic (the diagonal cannot be met: the
+    residuals say by how much), and the camera reproduces hfov and vfov exactly."""
+    solution = solve_zero_shot(CameraSpec(1920, 1080, 170.0, 20.0, 171.0))
+    assert solution.root_found and solution.projection.name == 'wide-stereographic'
+    residuals = solution.dfov_residuals
+    assert set(residuals) == {'wide-equidistant', 'wide-equisolid', 'wide-stereographic'}
+    assert min(residuals, key=lambda k: abs(residuals[k])) == 'wide-stereographic'
+    fovs = solution.camera.fields_of_view()
+    assert fovs['hfov'] == pytest.approx(170.0, abs=1e-9) and fovs['vfov'] == pytest.approx(20.0, abs=1e-9)
+    _node_calibration(solution)

@@ -56,7 +56,10 @@ def new_camera_matrix(camera: CameraModel, balance: float = 0.0, fov_scale: floa
         pts = _edge_points_within_reach(camera, edges)
     cn = pts.mean(axis=0)
     aspect = camera.fx / camera.fy
-    cn[0] *= aspect  # sic: OpenCV scales cn[0] but the points' y; kept for identical results
+    # To square pixels: y scaled by fx / fy, the centre's as the points'. (OpenCV up to 4.6, the
+    # version of Ubuntu 24.04, scaled cn[0] instead, a typo that moves P's principal point when
+    # fx != fy and the principal point is off-centre: opencv/opencv#22537, fixed in 4.7 by #22604.)
+    cn[1] *= aspect
     pts[:, 1] *= aspect
     minx, miny = pts.min(axis=0)
     maxx, maxy = pts.max(axis=0)
