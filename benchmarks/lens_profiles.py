@@ -50,10 +50,10 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from zeroshot_calib_ros.core.camera_models import KannalaBrandtCamera, PinholeCamera  # noqa: E402
-from zeroshot_calib_ros.core.solver import NoConvergence, solve_zero_shot  # noqa: E402
-from zeroshot_calib_ros.core.spec import CameraSpec, SpecError  # noqa: E402
-from zeroshot_calib_ros.core.wide_fov import fields_of_view_through_axis  # noqa: E402
+from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera, PinholeCamera  # noqa: E402
+from zeroshot_calib_ros.core.zeroshot.solver import NoConvergence, solve_zero_shot  # noqa: E402
+from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec, SpecError  # noqa: E402
+from zeroshot_calib_ros.core.lens.wide_fov import fields_of_view_through_axis  # noqa: E402
 
 DEFAULT_CSV = ROOT.parent / 'shared' / 'data' / 'lens_profiles_dev.csv'
 GRID = (33, 19)

@@ -11,7 +11,7 @@ sys.path[:0] = [str(REPO), str(REPO / 'test')]
 
 from paper_table2 import load_table2  # noqa: E402
 from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot  # noqa: E402
-from zeroshot_calib_ros.core.fitting import fit_kannala_brandt  # noqa: E402
+from zeroshot_calib_ros.core.lens.fitting import fit_kannala_brandt  # noqa: E402
 
 
 def main():

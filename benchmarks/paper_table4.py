@@ -29,12 +29,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from zeroshot_calib_ros.core import CameraSpec, ZeroShotCamera  # noqa: E402
-from zeroshot_calib_ros.core.calibration import (calibrate_fc, perspective_camera,  # noqa: E402
+from zeroshot_calib_ros.core.checkerboard.calibration import (calibrate_fc, perspective_camera,  # noqa: E402
                                                  zero_shot_camera)
-from zeroshot_calib_ros.core.calibration_file import CameraCalibration, json_safe  # noqa: E402
-from zeroshot_calib_ros.core.camera_models import camera_from_calibration  # noqa: E402
-from zeroshot_calib_ros.core.corners import Board, detect_corners  # noqa: E402
-from zeroshot_calib_ros.core.evaluation import (evaluate, evaluation_to_dict,  # noqa: E402
+from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration, json_safe  # noqa: E402
+from zeroshot_calib_ros.core.lens.models import camera_from_calibration  # noqa: E402
+from zeroshot_calib_ros.core.checkerboard.corners import Board, detect_corners  # noqa: E402
+from zeroshot_calib_ros.core.checkerboard.evaluation import (evaluate, evaluation_to_dict,  # noqa: E402
                                                 format_tables, reprojection_error)
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'ros_fisheye_800x503'

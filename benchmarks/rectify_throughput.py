@@ -45,7 +45,7 @@ import time
 from pathlib import Path
 
 # The remap floor is measured in this process with the OpenCV thread-pool settings the node uses
-# (zeroshot_calib_ros/node.py sets these before OpenCV loads).
+# (zeroshot_calib_ros/ros/node.py sets these before OpenCV loads).
 for _name in ('OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER', 'OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN'):
     os.environ.setdefault(_name, '0')
 
@@ -122,7 +122,7 @@ class Session:
             argv = [bc.NODE_EXECUTABLE, '--ros-args']
             if package_dir is not None:  # the package of another git ref (--baseline)
                 code = (f'import sys; sys.path.insert(0, {str(package_dir)!r}); '
-                        'from zeroshot_calib_ros.node import main; sys.exit(main())')
+                        'from zeroshot_calib_ros.ros.node import main; sys.exit(main())')
                 argv = [bc.PY, '-c', code, '--ros-args']
             for k, v in params.items():
                 argv += ['-p', f'{k}:={str(v).lower() if isinstance(v, bool) else v}']
@@ -301,8 +301,8 @@ def summarise_profile(path):
 # --- in-process floors and comparisons ----------------------------------------------------
 def node_calibration(width, height, rectify=True):
     """The node's own ActiveCalibration for the benchmark spec (same code path)."""
-    from zeroshot_calib_ros.node import PARAMETERS, Settings, solve_from_settings
-    values = {name: default for name, (default, _) in PARAMETERS.items()}
+    from zeroshot_calib_ros.core.ros_data.node_parameters import PARAMETERS, Settings, solve_from_settings
+    values = {name: parameter.default for name, parameter in PARAMETERS.items()}
     values.update(width=width, height=height, hfov=bc.HFOV, vfov=bc.vfov_for(width, height), rectify=rectify)
     active, _ = solve_from_settings(Settings.from_values(values), 0)
     return active
@@ -324,7 +324,7 @@ def timed(fn, repeat, warm=2, pause=0.0):
 
 def remap_floor(width, height, encoding, repeat):
     import cv2
-    from zeroshot_calib_ros.core import rectify as rectify_module
+    from zeroshot_calib_ros.core.ros_data import rectify as rectify_module
     active = node_calibration(width, height)
     _, rectifier = active.for_size(width, height)
     image = bc.test_image(width, height, bc.CHANNELS[encoding])
@@ -348,7 +348,7 @@ def compare_with_opencv(width, height, encoding, repeat):
     """Our exact fixed-point maps vs cv2.fisheye maps of the published CameraInfo (image_proc's
     route) vs cv2.fisheye.undistortImage per frame."""
     import cv2
-    from zeroshot_calib_ros.core.rectify import Rectifier
+    from zeroshot_calib_ros.core.ros_data.rectify import Rectifier
     active = node_calibration(width, height)
     cal = active.calibration
     K, D, P = cal.K, cal.D, cal.P[:3, :3]

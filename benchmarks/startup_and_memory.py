@@ -48,7 +48,7 @@ def node_argv(width, height, rectify=True, package_dir=None):
     if package_dir is None:
         return [bc.NODE_EXECUTABLE, *args]
     code = (f'import sys; sys.path.insert(0, {str(package_dir)!r}); '
-            'from zeroshot_calib_ros.node import main; sys.exit(main())')
+            'from zeroshot_calib_ros.ros.node import main; sys.exit(main())')
     return [bc.PY, '-c', code, *args]
 
 

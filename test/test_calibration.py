@@ -13,16 +13,16 @@ import pytest
 
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import CameraSpec, ZeroShotCamera
-from zeroshot_calib_ros.core import calibration as calib
-from zeroshot_calib_ros.core.calibration import (CalibrationError, calibrate,
+from zeroshot_calib_ros.core.checkerboard import calibration as calib
+from zeroshot_calib_ros.core.checkerboard.calibration import (CalibrationError, calibrate,
                                                  calibrate_opencv_fisheye, calibrate_zhang,
                                                  opencv_fisheye_flag, perspective_camera,
                                                  zero_shot_camera)
-from zeroshot_calib_ros.core.calibration_file import CameraCalibration
-from zeroshot_calib_ros.core.corners import (Board, CornersError, CornerSet, detect_corners,
+from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.checkerboard.corners import (Board, CornersError, CornerSet, detect_corners,
                                              parse_board)
-from zeroshot_calib_ros.core.pose import rodrigues
-from zeroshot_calib_ros.core.solver import solve_zero_shot
+from zeroshot_calib_ros.core.checkerboard.pose import rodrigues
+from zeroshot_calib_ros.core.zeroshot.solver import solve_zero_shot
 
 W, H = 800, 500
 # A wide-angle lens in the paper's model: w f = 1.05, about 150 deg across the image width.

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from zeroshot_calib_ros.core import atomic_file
-from zeroshot_calib_ros.core.calibration_file import (CalibrationFileError, CalibrationSaveError,
+from zeroshot_calib_ros.core.ros_data.calibration_file import (CalibrationFileError, CalibrationSaveError,
                                                       CameraCalibration, RegionOfInterest)
 
 from test_calibration_file import sample
@@ -154,7 +154,7 @@ def test_an_unwritable_directory_names_the_target(tmp_path, monkeypatch, temp_fi
 
 
 def test_callers_catching_oserror_still_catch_save_errors(tmp_path):
-    """node.py and cli.py catch OSError around save() and print exc.strerror."""
+    """ros/node.py and cli.py catch OSError around save() and print exc.strerror."""
     solution_like = sample()
     try:
         solution_like.save(str(tmp_path / 'cam.txt'))

@@ -7,8 +7,8 @@ from hypothesis import given, settings, strategies as st
 from paper_table2 import load_table2
 from zeroshot_calib_ros.core import (CameraSpec, KannalaBrandtCamera, PlumbBobCamera, ZeroShotCamera,
                                      solve_zero_shot)
-from zeroshot_calib_ros.core.fitting import fit_kannala_brandt, fit_plumb_bob
-from zeroshot_calib_ros.core.projections import PROJECTIONS
+from zeroshot_calib_ros.core.lens.fitting import fit_kannala_brandt, fit_plumb_bob
+from zeroshot_calib_ros.core.lens.projections import PROJECTIONS
 
 WIDE_ROWS = [r for r in load_table2() if r['omega'] and r['omega'] > 0.001]
 

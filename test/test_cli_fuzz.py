@@ -28,22 +28,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
+from fuzz_settings import examples
 from zeroshot_calib_ros.cli import build_parser, main
-from zeroshot_calib_ros.core.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
 
-SCALE = float(os.environ.get('ZEROSHOT_FUZZ_SCALE', '1'))
 CASES = Counter()
 STATUSES = Counter()
 REPO = Path(__file__).resolve().parents[1]
-
-
-def examples(n):
-    return settings(max_examples=max(1, int(n * SCALE)), deadline=None, derandomize=True,
-                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
-                                           HealthCheck.filter_too_much])
 
 
 @pytest.fixture(scope='module', autouse=True)

@@ -9,18 +9,12 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import given, strategies as st
 
-from zeroshot_calib_ros.core.corners import CORNERS_FORMAT, CORNERS_VERSION, Board, CornersError, CornerSet
+from fuzz_settings import examples
+from zeroshot_calib_ros.core.checkerboard.corners import CORNERS_FORMAT, CORNERS_VERSION, Board, CornersError, CornerSet
 
-SCALE = float(os.environ.get('ZEROSHOT_FUZZ_SCALE', '1'))
 CASES = Counter()
-
-
-def examples(n):
-    return settings(max_examples=max(1, int(n * SCALE)), deadline=None, derandomize=True,
-                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
-                                           HealthCheck.function_scoped_fixture])
 
 
 @pytest.fixture(scope='module', autouse=True)

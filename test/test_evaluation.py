@@ -18,12 +18,12 @@ from opencv_reference import board_points, eq20_squared_errors, rms
 from test_calibration import BOARD, CENTRED, TRUE, spec_of, synthetic_corners
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import KannalaBrandtCamera, PlumbBobCamera, ZeroShotCamera
-from zeroshot_calib_ros.core.calibration import as_solution, calibrate
-from zeroshot_calib_ros.core.calibration_file import CameraCalibration
-from zeroshot_calib_ros.core.corners import Board, detect_corners
-from zeroshot_calib_ros.core.evaluation import (evaluate, evaluation_to_dict, format_tables,
+from zeroshot_calib_ros.core.checkerboard.calibration import as_solution, calibrate
+from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.checkerboard.corners import Board, detect_corners
+from zeroshot_calib_ros.core.checkerboard.evaluation import (evaluate, evaluation_to_dict, format_tables,
                                                 reprojection_error)
-from zeroshot_calib_ros.core.pose import board_poses, rodrigues
+from zeroshot_calib_ros.core.checkerboard.pose import board_poses, rodrigues
 
 DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'ros_fisheye_800x503'
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from zeroshot_calib_ros.core.camera_models import KannalaBrandtCamera, PinholeCamera, PlumbBobCamera
+from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera, PinholeCamera, PlumbBobCamera
 
 
 def equidistant(w, h, f, cx=None, cy=None):

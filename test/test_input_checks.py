@@ -20,11 +20,11 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from test_calibration import BOARD, TRUE, chessboard_image, synthetic_corners
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import ZeroShotCamera
-from zeroshot_calib_ros.core import calibration as calib
-from zeroshot_calib_ros.core.calibration import calibrate, calibrate_opencv_fisheye, calibrate_zhang
-from zeroshot_calib_ros.core.corners import (Board, CornersError, CornerSet, check_corner_set,
+from zeroshot_calib_ros.core.checkerboard import calibration as calib
+from zeroshot_calib_ros.core.checkerboard.calibration import calibrate, calibrate_opencv_fisheye, calibrate_zhang
+from zeroshot_calib_ros.core.checkerboard.corners import (Board, CornersError, CornerSet, check_corner_set,
                                              detect_corners)
-from zeroshot_calib_ros.core.evaluation import evaluate, evaluation_to_dict, format_tables
+from zeroshot_calib_ros.core.checkerboard.evaluation import evaluate, evaluation_to_dict, format_tables
 
 DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'ros_fisheye_800x503'
 W, H = TRUE.width, TRUE.height
@@ -435,7 +435,7 @@ def test_shared_set_the_one_corner_fc_rejects_is_the_authors_calibrations_outlie
     """The real set passes the checks; FC rejects exactly the corners that the authors' own
     calibration (ost.yaml, KB4) also puts more than OUTLIER_MIN_PX off (left-0021.png #2: 4.9 px;
     the next largest is 2.2 px)."""
-    from zeroshot_calib_ros.core.evaluation import reprojection_error
+    from zeroshot_calib_ros.core.checkerboard.evaluation import reprojection_error
     report = check_corner_set(shared_corners)
     assert report.duplicates == []
     errors = reprojection_error(authors_camera, shared_corners).poses.errors

@@ -10,8 +10,8 @@ import pytest
 from paper_table2 import load_table2
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import CameraSpec, SpecError, solve_zero_shot
-from zeroshot_calib_ros.core.calibration_file import CameraCalibration
-from zeroshot_calib_ros.core.presets import (PRESETS_FILE, PresetError, get_preset, get_preset_entry,
+from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.zeroshot.presets import (PRESETS_FILE, PresetError, get_preset, get_preset_entry,
                                              load_presets, parse_presets)
 
 REPO = Path(__file__).resolve().parents[1]
@@ -121,7 +121,7 @@ def test_setup_py_installs_the_table():
 
 
 def test_spec_with_preset_overrides_field_by_field():
-    from zeroshot_calib_ros.core.presets import spec_with_preset
+    from zeroshot_calib_ros.core.zeroshot.presets import spec_with_preset
     spec = spec_with_preset('gopro_hero9_wide', vfov=70.0, hfov=None)
     assert (spec.width, spec.height, spec.hfov, spec.vfov) == (1920, 1080, 118.0, 70.0)
     assert spec_with_preset(None, width=640, height=480, hfov=90.0) == spec_with_preset('', width=640,

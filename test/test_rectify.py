@@ -5,10 +5,10 @@ import pytest
 
 from synthetic import find_corners, line_residuals, render_checkerboard
 from zeroshot_calib_ros.core import CameraSpec, KannalaBrandtCamera, solve_zero_shot
-from zeroshot_calib_ros.core.calibration_file import CameraCalibration
-from zeroshot_calib_ros.core.fitting import fit_kannala_brandt
-from zeroshot_calib_ros.core.image_frames import ENCODINGS, ActiveCalibration, image_array
-from zeroshot_calib_ros.core.rectify import Rectifier, new_camera_matrix
+from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.lens.fitting import fit_kannala_brandt
+from zeroshot_calib_ros.core.ros_data.image_frames import ENCODINGS, ActiveCalibration, image_array
+from zeroshot_calib_ros.core.ros_data.rectify import Rectifier, new_camera_matrix
 
 HERO9_W1 = CameraSpec(1920, 1080, 118, 69)
 

@@ -22,14 +22,15 @@ from sensor_msgs.msg import CameraInfo, Image
 from ros_peer import (diagnostics_value, domain_id, image_msg, parameter_msg, peer, qos,  # noqa: F401
                       start_node)
 from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
-from zeroshot_calib_ros.core.calibration_file import CalibrationFileError, CameraCalibration
-from zeroshot_calib_ros.core.image_frames import ENCODINGS, ActiveCalibration, FrameSkipped, image_array
-from zeroshot_calib_ros.core.solver import PROJECTION_CHOICES, NoConvergence
-from zeroshot_calib_ros.core.spec import SpecError
-from zeroshot_calib_ros.node import (PARAMETERS, Settings, _fill_camera_info, solve_from_settings)
+from zeroshot_calib_ros.core.ros_data.calibration_file import CalibrationFileError, CameraCalibration
+from zeroshot_calib_ros.core.ros_data.image_frames import ENCODINGS, ActiveCalibration, FrameSkipped, image_array
+from zeroshot_calib_ros.core.zeroshot.solver import PROJECTION_CHOICES, NoConvergence
+from zeroshot_calib_ros.core.zeroshot.spec import SpecError
+from zeroshot_calib_ros.core.ros_data.node_parameters import PARAMETERS, Settings, solve_from_settings
+from zeroshot_calib_ros.ros.messages import fill_camera_info
 
 EXPECTED_REJECTIONS = (SpecError, CalibrationFileError, NoConvergence, ValueError)
-DEFAULTS = {name: default for name, (default, _) in PARAMETERS.items()}
+DEFAULTS = {name: parameter.default for name, parameter in PARAMETERS.items()}
 NUMERIC = ('width', 'height', 'hfov', 'vfov', 'dfov', 'balance', 'fov_scale', 'publish_rate')
 INT64 = st.integers(-2 ** 63, 2 ** 63 - 1)
 
@@ -74,7 +75,7 @@ def parameter_sets(draw):
 
 def _finite_camera_info(calibration):
     msg = CameraInfo()
-    _fill_camera_info(msg, calibration)
+    fill_camera_info(msg, calibration)
     return all(math.isfinite(v) for v in (*msg.k, *msg.d, *msg.r, *msg.p)) and msg.k[0] > 0 and msg.k[4] > 0
 
 

@@ -6,7 +6,7 @@ import pytest
 
 from paper_table2 import load_table2
 from zeroshot_calib_ros.core import CameraSpec, NoConvergence, SpecError, ZeroShotCamera, solve_zero_shot
-from zeroshot_calib_ros.core.projections import PROJECTIONS
+from zeroshot_calib_ros.core.lens.projections import PROJECTIONS
 
 TABLE2 = load_table2()
 ROOT_ROWS = [r for r in TABLE2 if r['omega']]
@@ -217,8 +217,8 @@ def test_a_diagonal_not_wider_than_hfov_is_rejected_naming_dfov(fovs):
 
 
 def _node_calibration(solution):
-    from zeroshot_calib_ros.core.calibration_file import CameraCalibration
-    from zeroshot_calib_ros.core.image_frames import ActiveCalibration
+    from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+    from zeroshot_calib_ros.core.ros_data.image_frames import ActiveCalibration
     calibration, fit = CameraCalibration.from_solution(solution)
     ActiveCalibration(calibration, solution.camera, 'spec', rectify=True)  # maps built from P
     for value in (*calibration.K.ravel(), *calibration.D, *calibration.P.ravel()):

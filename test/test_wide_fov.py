@@ -1,4 +1,4 @@
-"""The wide-FOV zero-shot model (core/wide_fov.py), its integration, and the lens-profile benchmark."""
+"""The wide-FOV zero-shot model (core/lens/wide_fov.py), its integration, and the lens-profile benchmark."""
 import importlib.util
 import math
 import sys
@@ -11,13 +11,13 @@ from scipy.optimize import brentq
 from paper_table2 import load_table2
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import CameraSpec, SpecError, ZeroShotCamera, solve_zero_shot
-from zeroshot_calib_ros.core.calibration_file import CameraCalibration
-from zeroshot_calib_ros.core.fitting import fit_kannala_brandt
-from zeroshot_calib_ros.core.projections import PROJECTIONS
-from zeroshot_calib_ros.core.rectify import MAX_EDGE_ANGLE_DEG, Rectifier, new_camera_matrix
-from zeroshot_calib_ros.core.solver import PROJECTION_CHOICES
-from zeroshot_calib_ros.core.wide_fov import (WIDE_CHOICES, WideFovCamera, fields_of_view_through_axis,
-                                              needs_wide_model)
+from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.lens.fitting import fit_kannala_brandt
+from zeroshot_calib_ros.core.lens.projections import PROJECTIONS
+from zeroshot_calib_ros.core.ros_data.rectify import MAX_EDGE_ANGLE_DEG, Rectifier, new_camera_matrix
+from zeroshot_calib_ros.core.zeroshot.solver import PROJECTION_CHOICES
+from zeroshot_calib_ros.core.lens.wide_fov import WideFovCamera, fields_of_view_through_axis
+from zeroshot_calib_ros.core.zeroshot.wide_solver import WIDE_CHOICES, needs_wide_model
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / 'shared' / 'data'

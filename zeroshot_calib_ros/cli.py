@@ -31,17 +31,17 @@ import numpy as np
 
 from . import __version__
 
-from .core.calibration import as_solution, calibrate
-from .core.calibration_file import (DISTORTION_MODELS, CalibrationFileError, CameraCalibration,
+from .core.checkerboard.calibration import as_solution, calibrate
+from .core.ros_data.calibration_file import (DISTORTION_MODELS, CalibrationFileError, CameraCalibration,
                                     json_safe, solution_summary, summary_text)
-from .core.camera_models import camera_from_calibration
-from .core.corners import CornerSet, detect_corners, parse_board
-from .core.evaluation import evaluate, evaluation_to_dict, format_tables, reprojection_error
-from .core.fitting import DISTORTION_FITS, FIT_WARNING_PX
-from .core.presets import load_presets, spec_with_preset
-from .core.rectify import INTERPOLATIONS, Rectifier, new_camera_matrix
-from .core.solver import PROJECTION_CHOICES, NoConvergence, solve_zero_shot
-from .core.spec import CameraSpec, SpecError
+from .core.lens.models import camera_from_calibration
+from .core.checkerboard.corners import CornerSet, detect_corners, parse_board
+from .core.checkerboard.evaluation import evaluate, evaluation_to_dict, format_tables, reprojection_error
+from .core.lens.fitting import DISTORTION_FITS, FIT_WARNING_PX
+from .core.zeroshot.presets import load_presets, spec_with_preset
+from .core.ros_data.rectify import INTERPOLATIONS, Rectifier, new_camera_matrix
+from .core.zeroshot.solver import PROJECTION_CHOICES, NoConvergence, solve_zero_shot
+from .core.zeroshot.spec import CameraSpec, SpecError
 
 
 class CliError(Exception):

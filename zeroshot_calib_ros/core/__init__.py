@@ -6,14 +6,14 @@ Typical use::
     solution = solve_zero_shot(CameraSpec(1920, 1080, hfov=118, vfov=69))
     solution.f, solution.omega, solution.K
 """
-from .spec import CameraSpec, SpecError
-from .projections import PROJECTIONS, FisheyeProjection, get_projection
-from .camera_models import (CameraModel, KannalaBrandtCamera, PinholeCamera, PlumbBobCamera,
+from .zeroshot.spec import CameraSpec, SpecError
+from .lens.projections import PROJECTIONS, FisheyeProjection, get_projection
+from .lens.models import (CameraModel, KannalaBrandtCamera, PinholeCamera, PlumbBobCamera,
                             ZeroShotCamera, camera_from_calibration)
-from .solver import ZeroShotSolution, solve_zero_shot, NoConvergence
-from .camera_info_model import CameraInfoModel
-from .calibration_file import CameraCalibration
-from .rectify import Rectifier
+from .zeroshot.solver import ZeroShotSolution, solve_zero_shot, NoConvergence
+from .ros_data.camera_info_model import CameraInfoModel
+from .ros_data.calibration_file import CameraCalibration
+from .ros_data.rectify import Rectifier
 
 __all__ = [
     'CameraSpec', 'SpecError', 'PROJECTIONS', 'FisheyeProjection', 'get_projection',

@@ -24,7 +24,7 @@ from typing import Optional, Sequence
 import cv2
 import numpy as np
 
-from .camera_models import CameraModel, PinholeCamera
+from ..lens.models import CameraModel, PinholeCamera
 
 PNP_SOLVERS = tuple(name for name in ('EPNP', 'ITERATIVE', 'SQPNP', 'IPPE')
                     if hasattr(cv2, f'SOLVEPNP_{name}'))

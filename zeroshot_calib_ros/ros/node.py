@@ -15,14 +15,12 @@ image_rect come from one calibration.
 from __future__ import annotations
 
 import array
-import collections
 import os
 import sys
 import threading
 import time
 from collections import Counter
-from dataclasses import dataclass
-from typing import Optional, Tuple
+from typing import Optional
 
 # OpenCV's thread pool spins (busy-waits, sched_yield) around each parallel call before sleeping;
 # with the image publisher and subscribers on the same few cores that steals their CPU (py-spy:
@@ -34,378 +32,37 @@ for _name in ('OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER', 'OPENCV_THREAD_POOL_ACTIV
 
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
-import rclpy.executors
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType,
-                                SetParametersResult)
-from rclpy.exceptions import ParameterException, ParameterNotDeclaredException
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-from rclpy.parameter_service import ParameterService
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import CameraInfo, Image
-from sensor_msgs.srv import SetCameraInfo
+import rclpy.executors  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from rcl_interfaces.msg import SetParametersResult  # noqa: E402
+from rclpy.exceptions import ParameterException  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
+from sensor_msgs.srv import SetCameraInfo  # noqa: E402
 
-from .core.calibration_file import (DISTORTION_MODELS, CalibrationFileError, CameraCalibration,
-                                    RegionOfInterest, resolve_camera_info_url, solution_summary, summary_text)
-from .core.fitting import FIT_WARNING_PX
-from .core.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded, check_frame,
-                                check_map_budget, default_map_budget_mb, image_array, map_bytes)
-from .core.rectify import INTERPOLATIONS
-from .core.solver import PROJECTION_CHOICES, NoConvergence, solve_zero_shot
-from .core.presets import spec_with_preset
-from .core.spec import MAX_IMAGE_SIDE, CameraSpec, SpecError
+from ..core.lens.fitting import FIT_WARNING_PX  # noqa: E402
+from ..core.ros_data.calibration_file import (CalibrationFileError, CameraCalibration,  # noqa: E402
+                                              resolve_camera_info_url, summary_text)
+from ..core.ros_data.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded,  # noqa: E402
+                                          binned_roi_size, binning_or_roi_reason, check_frame,
+                                          check_map_budget, default_map_budget_mb, image_array, map_bytes)
+from ..core.ros_data.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
+from ..core.ros_data.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
+                                             RECTIFICATION_PARAMETERS, Settings, number_in_range,
+                                             solve_from_settings, usage_text)
+from ..core.zeroshot.solver import NoConvergence  # noqa: E402
+from ..core.zeroshot.spec import SpecError  # noqa: E402
+from .messages import calibration_from_camera_info, fill_camera_info  # noqa: E402
+from .parameter_service import AtomicParameterService, descriptor  # noqa: E402
 
 NODE_NAME = 'zeroshot_calib'
-SPEC_PARAMETERS = ('preset', 'width', 'height', 'hfov', 'vfov', 'dfov', 'circle_diameter', 'circle_fov',
-                   'projection')
-CALIBRATION_PARAMETERS = SPEC_PARAMETERS + ('distortion_model',)
-RECTIFICATION_PARAMETERS = ('balance', 'fov_scale', 'rectify', 'interpolation')
-FOV_PARAMETERS = ('hfov', 'vfov', 'dfov', 'circle_fov')
 IMAGE_IDLE_SECONDS = 1.0
 """Timer-driven CameraInfo resumes when no image arrived for this long."""
 WARN_THROTTLE_SECONDS = 5.0
 OTHER_SIZE_IDLE_SECONDS = 10.0
 """Maps of a frame size other than the configured one are released after this long unused."""
-REBUILD_MAP_THREADS = 1
-"""Threads building the maps of a new calibration while frames stream: one, so the stream keeps
-the other cores (with one per CPU, the longest gap between 1080p frames during a rebuild on 2
-cores reached 318 ms, with one 40-90 ms; benchmarks/startup_and_memory.py). At start-up and
-when no frame came for IMAGE_IDLE_SECONDS: one per CPU."""
-
-
-def _descriptor(description, kind, read_only=False, fp_range=None, int_range=None,
-                constraints='', dynamic=False):
-    d = ParameterDescriptor(description=description, type=kind, read_only=read_only,
-                            additional_constraints=constraints, dynamic_typing=dynamic)
-    if fp_range:
-        d.floating_point_range = [FloatingPointRange(from_value=fp_range[0], to_value=fp_range[1])]
-    if int_range:
-        d.integer_range = [IntegerRange(from_value=int_range[0], to_value=int_range[1], step=1)]
-    return d
-
-
-D = ParameterType
-PARAMETERS = {
-    # name: (default, descriptor)
-    # No camera is assumed: width, height and at least one FOV must be given (0 = not given).
-    # Numbers are typed dynamically so that `-p hfov:=118` or `balance: 1` (INTEGERs on the
-    # command line and in YAML) and `width:=1920.0` are accepted; the node checks every value.
-    'width': (0, _descriptor('Image width in pixels (required unless the preset gives it)', D.PARAMETER_INTEGER,
-                             int_range=(0, MAX_IMAGE_SIDE), dynamic=True,
-                             constraints=f'an integer from 1 to {MAX_IMAGE_SIDE}')),
-    'height': (0, _descriptor('Image height in pixels (required unless the preset gives it)', D.PARAMETER_INTEGER,
-                              int_range=(0, MAX_IMAGE_SIDE), dynamic=True,
-                              constraints=f'an integer from 1 to {MAX_IMAGE_SIDE}')),
-    'hfov': (0.0, _descriptor('Horizontal field of view from the spec sheet, degrees (0 = not given; '
-                                'integers accepted)', D.PARAMETER_DOUBLE, fp_range=(0.0, 360.0),
-                                dynamic=True, constraints='a number in [0, 360); 0 means not given')),
-    'vfov': (0.0, _descriptor('Vertical field of view from the spec sheet, degrees (0 = not given)',
-                               D.PARAMETER_DOUBLE, fp_range=(0.0, 360.0), dynamic=True,
-                               constraints='a number in [0, 360); 0 means not given')),
-    'dfov': (0.0, _descriptor('Diagonal field of view from the spec sheet, degrees (0 = not given); with '
-                              'hfov and vfov it selects the projection', D.PARAMETER_DOUBLE,
-                              fp_range=(0.0, 360.0), dynamic=True,
-                              constraints='a number in [0, 360); 0 means not given')),
-    'circle_diameter': (0.0, _descriptor('Circular fisheye: diameter of the image circle, pixels (0 = not '
-                                         'given); with circle_fov', D.PARAMETER_DOUBLE,
-                                         fp_range=(0.0, 2.0 * MAX_IMAGE_SIDE), dynamic=True,
-                                         constraints='a number of pixels; 0 means not given')),
-    'circle_fov': (0.0, _descriptor('Circular fisheye: field of view across the image circle, degrees '
-                                    '(0 = not given)', D.PARAMETER_DOUBLE, fp_range=(0.0, 360.0), dynamic=True,
-                                    constraints='a number in [0, 360); 0 means not given')),
-    'preset': ('', _descriptor('Camera preset (published spec sheet, `zeroshot-calib presets` lists them); '
-                               'width, height and FOV parameters that are not 0 override its fields',
-                               D.PARAMETER_STRING)),
-    'projection': ('auto', _descriptor('Fisheye projection of the lens', D.PARAMETER_STRING,
-                                       constraints='one of: ' + ', '.join(PROJECTION_CHOICES))),
-    'camera_name': ('camera', _descriptor('camera_name of calibration files and ${NAME} in camera_info_url',
-                                          D.PARAMETER_STRING, read_only=True,
-                                          constraints='letters, digits and _ (camera_info_manager\'s rule)')),
-    'frame_id': ('camera', _descriptor('header.frame_id of CameraInfo published without an image input '
-                                       '(with images, the image header is copied)', D.PARAMETER_STRING)),
-    'publish_rate': (10.0, _descriptor('CameraInfo rate when no image arrives on image_raw, Hz',
-                                       D.PARAMETER_DOUBLE, fp_range=(0.01, 1000.0), read_only=True,
-                                       dynamic=True, constraints='a number from 0.01 to 1000')),
-    'distortion_model': ('equidistant', _descriptor(
-        'CameraInfo distortion model: equidistant (OpenCV fisheye, k1..k4) or plumb_bob (narrow lenses)',
-        D.PARAMETER_STRING, constraints='one of: ' + ', '.join(DISTORTION_MODELS))),
-    'rectify': (False, _descriptor('Publish image_rect, rectified from image_raw', D.PARAMETER_BOOL)),
-    'balance': (0.0, _descriptor('Rectified camera: 0 keeps only valid pixels, 1 keeps every image edge '
-                                 '(cv2.fisheye.estimateNewCameraMatrixForUndistortRectify)',
-                                 D.PARAMETER_DOUBLE, fp_range=(0.0, 1.0), dynamic=True,
-                                 constraints='a number from 0 to 1')),
-    'fov_scale': (1.0, _descriptor('Rectified camera: field of view scale (divides the focal length)',
-                                   D.PARAMETER_DOUBLE, fp_range=(0.1, 10.0), dynamic=True,
-                                   constraints='a number from 0.1 to 10')),
-    'interpolation': (1, _descriptor('Rectification interpolation as image_proc: 0 nearest, 1 linear, '
-                                     '2 cubic, 4 lanczos4', D.PARAMETER_INTEGER, int_range=(0, 4),
-                                     constraints='0, 1, 2 or 4')),
-    'camera_info_url': ('', _descriptor('Calibration file, camera_info_manager\'s rules: file:// or package:// '
-                                        'URL or a path, ${NAME} = camera_name, ${ROS_HOME} (default ~/.ros); '
-                                        'empty = file://${ROS_HOME}/camera_info/${NAME}.yaml. If the file exists '
-                                        'it overrides the spec at start-up; set_camera_info saves there',
-                                        D.PARAMETER_STRING, read_only=True)),
-    'max_map_memory_mb': (0, _descriptor('Memory budget of the rectification maps, MiB (0 = an eighth of the '
-                                         'machine\'s memory); a change or frame size whose maps exceed it is '
-                                         'refused', D.PARAMETER_INTEGER, read_only=True, int_range=(0, 2**40),
-                                         constraints='an integer number of MiB; 0 = automatic')),
-}
-
-
-def _number(name, value, low, high, integer=False):
-    """``value`` as a float (int if ``integer``) in [low, high], else SpecError naming the range."""
-    allowed = f'{"an integer" if integer else "a number"} from {low:g} to {high:g}'
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) \
-            or not low <= value <= high or (integer and value != int(value)):
-        raise SpecError(name, value, allowed)
-    return int(value) if integer else float(value)
-
-
-@dataclass(frozen=True)
-class Settings:
-    """Parameter values the calibration depends on, checked."""
-
-    spec: CameraSpec
-    projection: str
-    distortion_model: str
-    camera_name: str
-    balance: float
-    fov_scale: float
-    rectify: bool
-    interpolation: int
-
-    @classmethod
-    def from_values(cls, values: dict) -> 'Settings':
-        for name in FOV_PARAMETERS:
-            value = values[name]
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise SpecError(name, value, 'a number of degrees in [0, 360); 0 means not given')
-        fovs = {n: (float(values[n]) if values[n] != 0 else None) for n in FOV_PARAMETERS}
-        circle = values['circle_diameter']
-        if isinstance(circle, bool) or not isinstance(circle, (int, float)):
-            raise SpecError('circle_diameter', circle, 'a number of pixels; 0 means not given')
-        if not isinstance(values['preset'], str):
-            raise SpecError('preset', values['preset'], 'a preset name')
-        size = {n: values[n] for n in ('width', 'height')}
-        if values['preset']:  # 0 = take the preset's
-            size = {n: (v if v != 0 else None) for n, v in size.items()}
-        spec = spec_with_preset(values['preset'], **size, **fovs,
-                                circle_diameter=float(circle) if circle != 0 else None)
-        # rclpy enforces the types of the parameters below; checked again for other callers
-        for name, choices in (('projection', PROJECTION_CHOICES), ('distortion_model', DISTORTION_MODELS)):
-            if not isinstance(values[name], str) or values[name] not in choices:
-                raise SpecError(name, values[name], ', '.join(choices))
-        interpolation = values['interpolation']
-        if isinstance(interpolation, bool) or not isinstance(interpolation, int) or \
-                interpolation not in INTERPOLATIONS:
-            raise SpecError('interpolation', interpolation, '0, 1, 2 or 4')
-        if not isinstance(values['rectify'], bool):
-            raise SpecError('rectify', values['rectify'], 'true or false')
-        name = values['camera_name']
-        # camera_info_manager's validateName: the name goes into file names (${NAME}) and files
-        if not isinstance(name, str) or not name or not all(c.isascii() and (c.isalnum() or c == '_') for c in name):
-            raise SpecError('camera_name', name, "letters, digits and _ (camera_info_manager's rule), not empty")
-        _number('publish_rate', values['publish_rate'], 0.01, 1000.0)
-        return cls(spec, values['projection'], values['distortion_model'], values['camera_name'],
-                   _number('balance', values['balance'], 0.0, 1.0),
-                   _number('fov_scale', values['fov_scale'], 0.1, 10.0), values['rectify'],
-                   int(interpolation))
-
-
-def solve_from_settings(settings: Settings, generation: int, build_maps: bool = True,
-                        map_budget_bytes: Optional[int] = None):
-    """ActiveCalibration solved from the spec, and its summary (maps built unless ``build_maps``
-    is False: then ``prepare()`` builds them)."""
-    solution = solve_zero_shot(settings.spec, settings.projection)
-    calibration, fit = CameraCalibration.from_solution(
-        solution, settings.distortion_model, settings.balance, settings.fov_scale, settings.camera_name)
-    active = ActiveCalibration(calibration, solution.camera, 'spec', generation, settings.rectify,
-                               settings.interpolation, build_maps=build_maps, map_budget_bytes=map_budget_bytes)
-    return active, solution_summary(solution, calibration, fit)
-
-
-def _calibration_from_msg(msg: CameraInfo, camera_name: str) -> CameraCalibration:
-    roi = RegionOfInterest(int(msg.roi.x_offset), int(msg.roi.y_offset), int(msg.roi.height),
-                           int(msg.roi.width), bool(msg.roi.do_rectify))
-    return CameraCalibration(int(msg.width), int(msg.height), np.array(msg.k), msg.distortion_model,
-                             np.array(msg.d), np.array(msg.r), np.array(msg.p), camera_name,
-                             int(msg.binning_x), int(msg.binning_y), roi)
-
-
-@dataclass
-class _Job:
-    """Maps the builder thread prepares: a calibration's (then swapped in) or a new frame size's."""
-
-    active: ActiveCalibration
-    log: str = ''
-    map_threads: Optional[int] = REBUILD_MAP_THREADS
-    size: Optional[Tuple[int, int]] = None
-    """None: the calibration's configured size, swapped in when built; else another frame size."""
-    values: Optional[dict] = None
-    """The parameter values this calibration came from (restored if its maps cannot be built)."""
-    seconds: float = 0.0
-    error: Optional[BaseException] = None
-
-
-class _MapBuilder:
-    """One worker thread for map building, at low CPU priority so the stream keeps its cores.
-
-    First the maps of the newest calibration asked for (a request superseded by a newer one
-    before its turn is dropped), then the maps of new frame sizes (each size once).
-    ``done(job)`` is called on the worker thread when a job ends."""
-
-    def __init__(self, done):
-        self._done = done
-        self._cond = threading.Condition()
-        self._pending: Optional[_Job] = None
-        self._sizes = collections.deque()
-        self._queued_sizes = set()
-        self._stopped = False
-        self._thread = threading.Thread(target=self._run, name='map_builder', daemon=True)
-        self._thread.start()
-
-    @property
-    def pending(self) -> Optional[_Job]:
-        return self._pending
-
-    def submit(self, job: _Job):
-        with self._cond:
-            self._pending = job
-            self._cond.notify()
-
-    def request_size(self, active: ActiveCalibration, width: int, height: int):
-        """Build the maps of ``width`` x ``height`` for ``active`` (once; later calls are no-ops)."""
-        key = (id(active), width, height)
-        with self._cond:
-            if key in self._queued_sizes:
-                return
-            self._queued_sizes.add(key)
-            self._sizes.append(_Job(active, size=(width, height)))
-            self._cond.notify()
-
-    def stop(self, timeout: float = 5.0):
-        with self._cond:
-            self._stopped = True
-            self._cond.notify()
-        self._thread.join(timeout)
-
-    def _run(self):
-        try:  # Linux: a thread's nice value is its own
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
-        except (AttributeError, OSError):
-            pass
-        while True:
-            with self._cond:
-                while self._pending is None and not self._sizes and not self._stopped:
-                    self._cond.wait()
-                if self._stopped:
-                    return
-                job = self._pending if self._pending is not None else self._sizes.popleft()
-            start = time.monotonic()
-            try:
-                if job.size is None:
-                    job.active.prepare(job.map_threads)
-                else:
-                    job.active.build_maps(*job.size, map_threads=job.map_threads)
-            except Exception as exc:  # reported by the node; the calibration in force stays
-                job.error = exc
-            job.seconds = time.monotonic() - start
-            with self._cond:
-                if self._pending is job:
-                    self._pending = None
-                if job.size is not None and job.error:  # a built size stays queued until released
-                    self._queued_sizes.discard((id(job.active), *job.size))
-            self._done(job)
-
-    def forget_size(self, active: ActiveCalibration, width: int, height: int):
-        """Allow ``width`` x ``height`` to be requested again (its maps were released)."""
-        with self._cond:
-            self._queued_sizes.discard((id(active), width, height))
-
-
-def _fill_camera_info(msg: CameraInfo, calibration: CameraCalibration):
-    msg.width, msg.height = calibration.width, calibration.height
-    msg.distortion_model = calibration.distortion_model
-    msg.d = calibration.D.tolist()
-    msg.k = calibration.K.ravel().tolist()
-    msg.r = calibration.R.ravel().tolist()
-    msg.p = calibration.P.ravel().tolist()
-    # as given (a file, set_camera_info); 0 and an all-zero roi mean the full image, unbinned
-    msg.binning_x, msg.binning_y = int(calibration.binning_x), int(calibration.binning_y)
-    roi = calibration.roi
-    msg.roi.x_offset, msg.roi.y_offset = int(roi.x_offset), int(roi.y_offset)
-    msg.roi.width, msg.roi.height = int(roi.width), int(roi.height)
-    msg.roi.do_rectify = bool(roi.do_rectify)
-
-
-def _binning_or_roi(calibration: CameraCalibration) -> str:
-    """Why the node cannot rectify frames of this calibration itself ('' if it can)."""
-    roi = calibration.roi
-    partial_roi = not roi.is_full() and \
-        (roi.x_offset, roi.y_offset, roi.width, roi.height) != (0, 0, calibration.width, calibration.height)
-    if calibration.binning_x > 1 or calibration.binning_y > 1 or partial_roi:
-        return (f'the calibration has binning {calibration.binning_x}x{calibration.binning_y} / roi '
-                f'{roi.width}x{roi.height}+{roi.x_offset}+{roi.y_offset}: the node rectifies full, unbinned '
-                'frames only (image_proc rectifies binned / ROI frames from this CameraInfo)')
-    return ''
-
-
-def _binned_roi_size(calibration: CameraCalibration) -> Tuple[int, int]:
-    """The size of the frames a binned / ROI calibration describes, as image_geometry computes it."""
-    roi = calibration.roi
-    width, height = (calibration.width, calibration.height) if roi.is_full() else (roi.width, roi.height)
-    return width // max(1, calibration.binning_x), height // max(1, calibration.binning_y)
-
-
-_TYPE_TEXT = {ParameterType.PARAMETER_BOOL: 'true or false', ParameterType.PARAMETER_INTEGER: 'an integer',
-              ParameterType.PARAMETER_DOUBLE: 'a number', ParameterType.PARAMETER_STRING: 'a string'}
-
-
-class _AtomicParameterService(ParameterService):
-    """rclpy's parameter services, except that one SetParameters request (``ros2 param set``,
-    ``ros2 param load``) is one change: validated together, solved once, adopted whole or
-    rejected whole. rclpy applies such a request value by value, which adopts intermediate
-    calibrations nobody asked for (a new width with the old height). Read-only parameters given
-    their current value (a params file loaded back) are no change and succeed."""
-
-    def _set_parameters_callback(self, request, response):
-        node = self._get_node()
-        parameters = [Parameter.from_parameter_msg(p) for p in request.parameters]
-        unchanged = set()
-        for i, param in enumerate(parameters):
-            if node.has_parameter(param.name) and node.describe_parameter(param.name).read_only and \
-                    node.get_parameter(param.name).value == param.value:
-                unchanged.add(i)
-        changes = [p for i, p in enumerate(parameters) if i not in unchanged]
-        wrong_type = next((text for text in map(self._wrong_type, changes) if text), None)
-        try:
-            if wrong_type:  # rclpy's reason would not name the parameter
-                result = SetParametersResult(successful=False, reason=wrong_type)
-            else:
-                result = node.set_parameters_atomically(changes) if changes else SetParametersResult(successful=True)
-        except ParameterNotDeclaredException as exc:
-            result = SetParametersResult(successful=False, reason=f'{exc}: the whole request was rejected')
-        # Whole: a rejected request rejects its unchanged read-only values too, so that no client
-        # reads one result as "this part was applied".
-        response.results = [SetParametersResult(successful=True, reason='unchanged (read-only)')
-                            if i in unchanged and result.successful else result for i in range(len(parameters))]
-        return response
-
-    def _wrong_type(self, param: Parameter) -> str:
-        """The reason a value of the wrong type for a statically typed parameter is rejected, naming
-        the parameter as the node's own checks do ('' if the type is right or rclpy decides)."""
-        node = self._get_node()
-        if not node.has_parameter(param.name):
-            return ''
-        descriptor = node.describe_parameter(param.name)
-        if descriptor.dynamic_typing or descriptor.read_only or param.type_.value == descriptor.type:
-            return ''
-        value = param.value if not hasattr(param.value, 'tolist') else param.value.tolist()
-        allowed = _TYPE_TEXT.get(descriptor.type, Parameter.Type(descriptor.type).name.lower())
-        if descriptor.additional_constraints:
-            allowed += f' ({descriptor.additional_constraints})'
-        return f'{param.name} = {value!r} is invalid: allowed: {allowed}'
 
 
 class ZeroShotCalibNode(Node):
@@ -413,9 +70,9 @@ class ZeroShotCalibNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, start_parameter_services=False, **kwargs)
-        self._parameter_service = _AtomicParameterService(self)
-        for name, (default, descriptor) in PARAMETERS.items():
-            self.declare_parameter(name, default, descriptor)
+        self._parameter_service = AtomicParameterService(self)
+        for name, parameter in PARAMETERS.items():
+            self.declare_parameter(name, parameter.default, descriptor(parameter))
         self._stats = Counter()
         self._warned_at = {}
         self._last_image_time = None  # time.monotonic() of the last frame
@@ -430,7 +87,7 @@ class ZeroShotCalibNode(Node):
         self._maps_build_ms = float('nan')
         self._reverting = False
 
-        self._map_budget = _number('max_map_memory_mb', self.get_parameter('max_map_memory_mb').value,
+        self._map_budget = number_in_range('max_map_memory_mb', self.get_parameter('max_map_memory_mb').value,
                                    0, 2**40, integer=True) or default_map_budget_mb()
         settings = Settings.from_values(self._values())
         self._settings = settings
@@ -445,7 +102,7 @@ class ZeroShotCalibNode(Node):
         self._built = []
         self._built_lock = threading.Lock()
         self._built_guard = self.create_guard_condition(self._on_calibration_built)
-        self._builder = _MapBuilder(self._on_builder_done)
+        self._builder = MapBuilder(self._on_builder_done)
 
         self._create_endpoints()
         self._set_camera_info_srv = self.create_service(SetCameraInfo, 'set_camera_info',
@@ -460,7 +117,7 @@ class ZeroShotCalibNode(Node):
         self._publish_own_info()
         self.get_logger().info(self._interfaces_text())
         if self._active.rectify_enabled:  # after the first CameraInfo is out
-            self._builder.submit(_Job(self._active, map_threads=None))
+            self._builder.submit(MapJob(self._active, map_threads=None))
 
     @property
     def _map_budget_bytes(self) -> int:
@@ -579,7 +236,7 @@ class ZeroShotCalibNode(Node):
     def _publish_own_info(self):
         """A CameraInfo stamped now (no image to take the header from)."""
         msg = CameraInfo()
-        _fill_camera_info(msg, self._active.calibration)
+        fill_camera_info(msg, self._active.calibration)
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = self.get_parameter('frame_id').value
         self._info_pub.publish(msg)
@@ -592,11 +249,11 @@ class ZeroShotCalibNode(Node):
         try:
             # the same checks whatever rectify is: no CameraInfo for an image the message lacks
             check_frame(width, height, msg.step, msg.encoding, len(msg.data))
-            if _binning_or_roi(active.calibration):
+            if binning_or_roi_reason(active.calibration):
                 # CameraInfo as given (binning and roi tell consumers how the frame maps); no scaling
                 calibration = active.calibration
-                if (width, height) != _binned_roi_size(calibration):
-                    raise FrameSkipped('aspect', f'image {width}x{height} is not the {"x".join(map(str, _binned_roi_size(calibration)))} '
+                if (width, height) != binned_roi_size(calibration):
+                    raise FrameSkipped('aspect', f'image {width}x{height} is not the {"x".join(map(str, binned_roi_size(calibration)))} '
                                        'that the calibration\'s binning and roi describe')
             else:
                 calibration = active.calibration_for(width, height)
@@ -626,7 +283,7 @@ class ZeroShotCalibNode(Node):
     def _request_maps(self, active: ActiveCalibration, calibration: CameraCalibration, width: int, height: int):
         """A frame whose maps are not built: skipped (counted) while the builder builds them, so
         that one frame of a new size never stalls the stream."""
-        reason = _binning_or_roi(calibration)
+        reason = binning_or_roi_reason(calibration)
         if reason:
             raise FrameSkipped('binning_roi', reason)
         if (width, height) != active.size:
@@ -645,7 +302,7 @@ class ZeroShotCalibNode(Node):
         cached_calibration, info = self._info_cache
         if cached_calibration is not calibration:
             info = CameraInfo()
-            _fill_camera_info(info, calibration)
+            fill_camera_info(info, calibration)
             self._info_cache = (calibration, info)
         return info
 
@@ -764,7 +421,7 @@ class ZeroShotCalibNode(Node):
         changes build on it (``_newest``) even before it is in force."""
         self._generation = max(self._generation, active.generation)
         self._newest = active
-        job = _Job(active, log, values=values if values is not None else self._values())
+        job = MapJob(active, log, values=values if values is not None else self._values())
         if not active.rectify_enabled:  # nothing to build: in force at once
             self._swap_in(job)
             return
@@ -773,7 +430,7 @@ class ZeroShotCalibNode(Node):
         job.map_threads = REBUILD_MAP_THREADS if streaming else None
         self._builder.submit(job)
 
-    def _on_builder_done(self, job: _Job):
+    def _on_builder_done(self, job: MapJob):
         """Builder thread: hand the job to the executor thread."""
         with self._built_lock:
             self._built.append(job)
@@ -805,7 +462,7 @@ class ZeroShotCalibNode(Node):
             if job.active is not self._active:
                 self._swap_in(job)
 
-    def _calibration_failed(self, job: _Job):
+    def _calibration_failed(self, job: MapJob):
         """Maps of an accepted change could not be built (e.g. memory): the calibration in force
         stays, and so that get_parameters, CameraInfo and the log agree, the parameters go back
         to the values in force."""
@@ -829,7 +486,7 @@ class ZeroShotCalibNode(Node):
             f'{job.error!r}; parameters restored to the values in force '
             f'({", ".join(f"{p.name}={p.value!r}" for p in restore) or "unchanged"})')
 
-    def _swap_in(self, job: _Job):
+    def _swap_in(self, job: MapJob):
         if job.active.generation <= self._active.generation:
             return  # superseded while it was built
         self._active = job.active
@@ -852,7 +509,7 @@ class ZeroShotCalibNode(Node):
         memory with rectify on), saved to camera_info_url, then adopted. "success" means adopted
         and saved, as camera_info_manager answers."""
         try:
-            calibration = _calibration_from_msg(request.camera_info, self._settings.camera_name)
+            calibration = calibration_from_camera_info(request.camera_info, self._settings.camera_name)
             active = ActiveCalibration(calibration, calibration.camera(), 'set_camera_info',
                                        self._generation + 1, self._settings.rectify,
                                        self._settings.interpolation, build_maps=False,
@@ -878,31 +535,11 @@ class ZeroShotCalibNode(Node):
         return response
 
 
-def usage() -> str:
-    """`node --help`: how to start the node, and every parameter with its type, default and range."""
-    lines = ['usage: ros2 run zeroshot_calib_ros node --ros-args [-p NAME:=VALUE ...] [--params-file FILE]',
-             '             [-r __ns:=/NAMESPACE] [-r image_raw:=/camera/image_raw]',
-             '',
-             'Publishes sensor_msgs/CameraInfo (equidistant) computed from a camera\'s spec sheet',
-             '(zero-shot calibration, J.-Y. Lee, CVPR 2021); with rectify:=true also image_rect.',
-             'Example: ros2 run zeroshot_calib_ros node --ros-args -p width:=1920 -p height:=1080 '
-             '-p hfov:=118 -p vfov:=69',
-             '',
-             'parameters:']
-    for name, (default, descriptor) in PARAMETERS.items():
-        flags = ' (read-only)' if descriptor.read_only else ''
-        allowed = f'; allowed: {descriptor.additional_constraints}' if descriptor.additional_constraints else ''
-        lines.append(f'  {name:17s} default {default!r}{flags}: {descriptor.description}{allowed}')
-    lines += ['', 'topics (relative; namespace and remap them): camera_info, image_rect (with rectify), '
-              'image_raw (in), service set_camera_info, /diagnostics']
-    return '\n'.join(lines)
-
-
 def main(args=None):
     argv = sys.argv[1:] if args is None else list(args[1:])
     user_args = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
     if '-h' in user_args or '--help' in user_args:
-        print(usage())
+        print(usage_text())
         return 0
     rclpy.init(args=args)
     node = None

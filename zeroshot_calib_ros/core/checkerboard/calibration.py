@@ -40,13 +40,13 @@ import numpy as np
 from scipy import sparse
 from scipy.optimize import least_squares
 
-from .camera_models import (CameraModel, KannalaBrandtCamera, PinholeCamera, PlumbBobCamera,
+from ..lens.models import (CameraModel, KannalaBrandtCamera, PinholeCamera, PlumbBobCamera,
                             ZeroShotCamera)
 from .corners import MIN_CORNERS_PER_IMAGE, CornerSet, check_corner_set
 from .pose import board_poses, transform
-from .projections import PROJECTIONS, FisheyeProjection
-from .solver import UnrepresentableSpec, solve_zero_shot
-from .spec import CameraSpec, SpecError
+from ..lens.projections import PROJECTIONS, FisheyeProjection
+from ..zeroshot.solver import UnrepresentableSpec, solve_zero_shot
+from ..zeroshot.spec import CameraSpec, SpecError
 
 METHODS = ('fc', 'fc+zs', 'zhang', 'fisheye')
 METHOD_LABELS = {'fc': 'FC_eq.d.', 'fc+zs': 'FC_eq.d.+ZS', 'zhang': 'Zhang',
@@ -151,7 +151,7 @@ def zero_shot_camera(spec: CameraSpec, width: Optional[int] = None, height: Opti
     The paper's model stops at 90 degrees off-axis, so ``solve_zero_shot`` refuses its
     equidistant model for specs whose image *corners* reach that (a 180-degree lens). Board
     corners inside the image can still be mapped by the same law, so such a spec is solved with
-    'wide-equidistant' (core/wide_fov.py: the paper's camera written in angle space, identical
+    'wide-equidistant' (core/lens/wide_fov.py: the paper's camera written in angle space, identical
     below 90 degrees), and ``note`` says so (empty otherwise).
     """
     note = ''
@@ -647,7 +647,7 @@ def calibrate_opencv_fisheye(corners: CornerSet, views: Optional[Sequence[int]] 
         cam = _fc_start(corners, views)
         if cam is None:
             return None
-        from .fitting import fit_kannala_brandt
+        from ..lens.fitting import fit_kannala_brandt
         capped = _DomainCappedCamera(cam.f, cam.cx, cam.cy, W, H, cam.omega, cam.projection)
         try:
             D0 = fit_kannala_brandt(capped).D

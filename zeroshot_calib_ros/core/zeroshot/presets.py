@@ -5,7 +5,7 @@ package data): one camera mode per row, ``name,width,height,hfov,vfov,dfov,circl
 circle_fov,description,source``, empty cells where the manufacturer publishes nothing, ``#``
 lines are comments. Every row must name its source.
 
-    from zeroshot_calib_ros.core.presets import get_preset
+    from zeroshot_calib_ros.core.zeroshot.presets import get_preset
     solve_zero_shot(get_preset('gopro_hero9_wide'))
 
 Names are matched case-insensitively, with '-' and ' ' read as '_'.

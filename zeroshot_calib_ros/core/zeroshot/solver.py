@@ -21,10 +21,11 @@ from typing import Dict
 import numpy as np
 from scipy.optimize import brentq
 
-from .camera_models import ZeroShotCamera
-from .projections import PROJECTIONS, FisheyeProjection
+from ..lens.models import ZeroShotCamera
+from ..lens.projections import PROJECTIONS, FisheyeProjection
 from .spec import CameraSpec, SpecError
-from .wide_fov import WIDE, WIDE_CHOICES, needs_wide_model, solve_wide
+from ..lens.wide_fov import WIDE
+from .wide_solver import WIDE_CHOICES, needs_wide_model, solve_wide
 
 PROJECTION_CHOICES = ('auto',) + tuple(PROJECTIONS) + WIDE_CHOICES
 DEFAULT_PROJECTION = 'equidistant'
@@ -36,7 +37,7 @@ class NoConvergence(RuntimeError):
 
 class UnrepresentableSpec(SpecError):
     """The paper's model cannot represent the spec (rays 90 degrees or more off-axis); under
-    projection='auto' the wide model (core/wide_fov.py) takes over."""
+    projection='auto' the wide model (core/lens/wide_fov.py) takes over."""
 
 
 @dataclass
@@ -179,7 +180,7 @@ def solve_zero_shot(spec: CameraSpec, projection: str = 'auto', method: str = 'b
     projection whose predicted dfov is closest to the given one (the paper's proposed adaptive
     selection, sec. 5); otherwise equidistant, the paper's default.
     'wide' / 'wide-<law>': the paper's model continued in angle space past 90 degrees off-axis
-    (core/wide_fov.py: FOVs of 180 degrees and more, the circular-fisheye spec form); its camera
+    (core/lens/wide_fov.py: FOVs of 180 degrees and more, the circular-fisheye spec form); its camera
     is a WideFovCamera, ``omega`` its w = a / f (finite; the paper's w* wherever the paper's
     model represents the spec), ``dfov_residuals`` keyed 'wide-<law>', and it is always solved
     by bracketing. 'auto' switches to it only when the paper's model cannot represent the spec

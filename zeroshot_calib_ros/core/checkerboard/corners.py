@@ -44,7 +44,7 @@ from typing import List, Optional, Sequence
 import cv2
 import numpy as np
 
-from .atomic_file import write_atomically
+from ..atomic_file import write_atomically
 
 CORNERS_FORMAT = 'zeroshot-calib-corners'
 CORNERS_VERSION = 1

@@ -18,7 +18,7 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 
 from .calibration_file import CameraCalibration
-from .camera_models import CameraModel
+from ..lens.models import CameraModel
 from .rectify import Rectifier, new_camera_matrix
 
 ENCODINGS: Dict[str, Tuple[np.dtype, int]] = {
@@ -276,3 +276,22 @@ class ActiveCalibration:
         if not self.rectify_enabled:
             return calibration, None
         return calibration, self.build_maps(width, height, map_threads)
+
+
+def binning_or_roi_reason(calibration: CameraCalibration) -> str:
+    """Why the node cannot rectify frames of this calibration itself ('' if it can)."""
+    roi = calibration.roi
+    partial_roi = not roi.is_full() and \
+        (roi.x_offset, roi.y_offset, roi.width, roi.height) != (0, 0, calibration.width, calibration.height)
+    if calibration.binning_x > 1 or calibration.binning_y > 1 or partial_roi:
+        return (f'the calibration has binning {calibration.binning_x}x{calibration.binning_y} / roi '
+                f'{roi.width}x{roi.height}+{roi.x_offset}+{roi.y_offset}: the node rectifies full, unbinned '
+                'frames only (image_proc rectifies binned / ROI frames from this CameraInfo)')
+    return ''
+
+
+def binned_roi_size(calibration: CameraCalibration) -> Tuple[int, int]:
+    """The size of the frames a binned / ROI calibration describes, as image_geometry computes it."""
+    roi = calibration.roi
+    width, height = (calibration.width, calibration.height) if roi.is_full() else (roi.width, roi.height)
+    return width // max(1, calibration.binning_x), height // max(1, calibration.binning_y)

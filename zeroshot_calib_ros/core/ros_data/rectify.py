@@ -8,7 +8,7 @@ from typing import Optional, Tuple
 import cv2
 import numpy as np
 
-from .camera_models import CameraModel
+from ..lens.models import CameraModel
 
 INTERPOLATIONS = {0: cv2.INTER_NEAREST, 1: cv2.INTER_LINEAR, 2: cv2.INTER_CUBIC, 4: cv2.INTER_LANCZOS4}
 """image_proc's ``interpolation`` values (3, area, has no remap equivalent)."""
@@ -17,7 +17,7 @@ _MAP_ROWS_PER_CHUNK = 128  # bounds the float64 temporaries to ~ 128 x width x 3
 
 MAX_EDGE_ANGLE_DEG = 80.0
 """For lenses whose image edges reach 90 degrees off-axis or more (180-degree and wider lenses,
-core/wide_fov.py), which no pinhole can show: in ``new_camera_matrix`` every edge midpoint then
+core/lens/wide_fov.py), which no pinhole can show: in ``new_camera_matrix`` every edge midpoint then
 counts as at most this far off-axis (in its own direction), so balance = 1 shows up to +-80
 degrees there and balance = 0 is set by the edges that are nearer the axis."""
 

@@ -28,12 +28,12 @@ from typing import List, Optional
 import numpy as np
 import yaml
 
-from .atomic_file import SaveError, write_atomically
-from .camera_models import CameraModel, camera_from_calibration
-from .fitting import DISTORTION_FITS
+from ..atomic_file import SaveError, write_atomically
+from ..lens.models import CameraModel, camera_from_calibration
+from ..lens.fitting import DISTORTION_FITS
 from .rectify import new_camera_matrix
-from .solver import ZeroShotSolution
-from .spec import MAX_IMAGE_SIDE
+from ..zeroshot.solver import ZeroShotSolution
+from ..zeroshot.spec import MAX_IMAGE_SIDE
 
 DISTORTION_MODELS = tuple(DISTORTION_FITS)
 """The models ``from_solution`` can fit."""

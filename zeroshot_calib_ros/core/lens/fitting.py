@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linprog
 
-from .camera_models import KannalaBrandtCamera, PlumbBobCamera, RadialCamera
+from .models import KannalaBrandtCamera, PlumbBobCamera, RadialCamera
 
 FIT_SAMPLES = 2000
 FIT_WARNING_PX = 0.5

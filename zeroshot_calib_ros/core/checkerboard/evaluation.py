@@ -30,10 +30,10 @@ import numpy as np
 
 from .calibration import (METHOD_LABELS, CalibrationResult, calibrate, perspective_camera,
                           zero_shot_camera)
-from .camera_models import CameraModel, KannalaBrandtCamera, PlumbBobCamera, RadialCamera
+from ..lens.models import CameraModel, KannalaBrandtCamera, PlumbBobCamera, RadialCamera
 from .corners import CornerSet, check_corner_set
 from .pose import BoardPoses, board_poses
-from .spec import CameraSpec, SpecError
+from ..zeroshot.spec import CameraSpec, SpecError
 
 FULL_METHODS = ('pers', 'zs', 'zhang', 'fc', 'fc+zs', 'fisheye')
 SHOT_METHODS = ('fc', 'zhang', 'fc+zs', 'fisheye')

@@ -1,0 +1,191 @@
+"""README claims about the ROS node that no other test checked (issue 11; the map of every claim
+to its test is docs/readme_claims.md), each against the installed node in its own process: the
+Parameters table (defaults, types, read-only, ranges, `--help`), the start-up log the README
+shows, the /diagnostics rate, integers in a params file, and set_camera_info's answer when the
+calibration is adopted but cannot be saved.
+"""
+import re
+import subprocess
+import time
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import ParameterType
+from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters
+from sensor_msgs.msg import CameraInfo
+from sensor_msgs.srv import SetCameraInfo
+
+from ros_peer import (LATCHED, NODE_EXECUTABLE, REPO, domain_id, peer, qos, ros_environment,  # noqa: F401
+                      start_node)
+
+README = (REPO / 'README.md').read_text()
+SHARE = REPO / 'install' / 'zeroshot_calib_ros' / 'share' / 'zeroshot_calib_ros'
+NODE = '/zeroshot_calib'
+RCLPY_PARAMETERS = {'use_sim_time', 'start_type_description_service'}  # every rclpy node has them
+
+
+def readme_parameters():
+    """{name: (type cell, default cell)} of the README's Parameters table."""
+    section = README[README.index('### Parameters'):]
+    table = {}
+    for line in section.splitlines()[4:]:
+        if not line.startswith('|'):
+            break
+        names, kind, default = [c.strip() for c in line.strip('|').split('|')][:3]
+        for name in re.findall(r'`([a-z_]+)`', names):
+            table[name] = (kind, default)
+    return table
+
+
+ROS_TYPES = {'string': ParameterType.PARAMETER_STRING, 'int': ParameterType.PARAMETER_INTEGER,
+             'double': ParameterType.PARAMETER_DOUBLE, 'bool': ParameterType.PARAMETER_BOOL}
+
+
+def expected_default(kind, cell):
+    """The value a README default cell means for a parameter of that type."""
+    base = kind.split()[0].rstrip(',')
+    word = cell.split(' =')[0].strip('`').strip()
+    if cell.startswith('required'):
+        word = '0'  # not given: the node takes it from the preset (or refuses to start)
+    if base == 'string':
+        return '' if word == 'empty' else word
+    if base == 'bool':
+        return {'false': False, 'true': True}[word]
+    return {'int': int, 'double': float}[base](word)
+
+
+def _value(v):
+    return {ParameterType.PARAMETER_BOOL: v.bool_value, ParameterType.PARAMETER_INTEGER: v.integer_value,
+            ParameterType.PARAMETER_DOUBLE: v.double_value, ParameterType.PARAMETER_STRING: v.string_value}[v.type]
+
+
+def _mem_total_mib():
+    line = next(line for line in open('/proc/meminfo') if line.startswith('MemTotal:'))
+    return int(line.split()[1]) * 1024 / 2**20
+
+
+def test_parameters_table_is_what_the_node_declares(peer, start_node):
+    """README, Parameters: every row's name, type, default, read-only flag and range ([0, 1] for
+    balance, [0.1, 10] for fov_scale) is what the running node declares (ListParameters,
+    GetParameters, DescribeParameters); and `node --help` prints "usage and every parameter,
+    exit 0". The node is started from the preset alone, so every other parameter keeps its default
+    (the preset's default is checked in --help)."""
+    table = readme_parameters()
+    assert len(table) == 19
+    start_node('--ros-args', '-p', 'preset:=gopro_hero9_wide')
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='camera_info')
+    assert infos[-1].k[0] == pytest.approx(876.0, abs=0.05)  # the preset's camera (Table 2, Hero9(W1))
+    listed = peer.call(ListParameters, f'{NODE}/list_parameters', ListParameters.Request()).result.names
+    ours = {n for n in listed if n not in RCLPY_PARAMETERS and not n.startswith('qos_overrides')}
+    assert ours == set(table), (ours ^ set(table))
+    names = list(table)
+    values = peer.call(GetParameters, f'{NODE}/get_parameters', GetParameters.Request(names=names)).values
+    described = peer.call(DescribeParameters, f'{NODE}/describe_parameters',
+                          DescribeParameters.Request(names=names)).descriptors
+    for name, value, descriptor in zip(names, values, described):
+        kind, default = table[name]
+        expected = expected_default(kind, default) if name != 'preset' else 'gopro_hero9_wide'  # given
+        assert value.type == ROS_TYPES[kind.split()[0].rstrip(',')], (name, value.type)
+        assert _value(value) == expected and type(_value(value)) is type(expected), (name, _value(value), default)
+        assert descriptor.read_only == ('read-only' in kind), name
+        bounds = re.search(r'\[([\d.]+), ([\d.]+)\]', kind)
+        if bounds:
+            fp = descriptor.floating_point_range[0]
+            assert (fp.from_value, fp.to_value) == (float(bounds.group(1)), float(bounds.group(2))), name
+    done = subprocess.run([str(NODE_EXECUTABLE), '--help'], capture_output=True, text=True, timeout=30,
+                          env=ros_environment(99))
+    assert done.returncode == 0 and done.stdout.startswith('usage: ros2 run zeroshot_calib_ros node')
+    for name, (kind, default) in table.items():
+        line = next((x for x in done.stdout.splitlines() if x.startswith(f'  {name} ')), None)
+        assert line is not None, f'--help does not list {name}'
+        assert f'default {expected_default(kind, default)!r}' in line, line
+
+
+def test_start_up_log_is_the_readme_block_and_diagnostics_come_at_1_hz(peer, start_node, tmp_path):
+    """README: "At start-up the node logs the calibration block (spec, model, `w*`, `f*`, `K`,
+    `D`, fit error), then what it resolved (`make run ARGS='-r __ns:=/front -p rectify:=true'`)"
+    followed by the block it shows; `/diagnostics` "1 Hz". Started as `make run` starts it (the
+    HERO9 params file, those ARGS): the calibration lines are those of the README's `zeroshot-calib
+    solve` output for the same camera, the interface lines are the README's (the map budget an
+    eighth of this machine's memory, the file under this test's ROS_HOME)."""
+    node = start_node('--ros-args', '--params-file', str(SHARE / 'config' / 'hero9_w1.yaml'),
+                      '-r', '__ns:=/front', '-p', 'rectify:=true')
+    diagnostics = []
+    peer.node.create_subscription(DiagnosticArray, '/diagnostics', lambda m: diagnostics.append(time.monotonic()),
+                                  qos())
+    peer.spin_until(lambda: 'calibration file:' in node.log, timeout=20, what='the start-up block')
+    log = node.log.splitlines()
+    solve_output = re.search(r'zeroshot-calib solve --width 1920 --height 1080 --hfov 118 --vfov 69\n```\n```\n'
+                             r'(.*?)```', README, re.S).group(1).strip().splitlines()
+    assert len(solve_output) == 8
+    for line in solve_output:
+        assert any(x.endswith(line) for x in log), f'calibration block line missing: {line}'
+    block = re.search(r'```\n(interfaces \(QoS.*?)```', README, re.S).group(1).strip().splitlines()
+    budget = int(_mem_total_mib() // 8)
+    block = [re.sub(r'max_map_memory_mb = \d+', f'max_map_memory_mb = {budget}', line) for line in block]
+    block = [line.replace('/root/.ros', str(tmp_path / 'ros_home')) for line in block]
+    for line in block:
+        assert any(x.endswith(line) for x in log), f"interfaces line missing: {line!r}\n{node.log}"
+    peer.spin_until(lambda: len(diagnostics) >= 5, timeout=15, what='/diagnostics')
+    intervals = np.diff(diagnostics[-4:])
+    assert np.median(intervals) == pytest.approx(1.0, abs=0.15), intervals
+    assert node.alive()
+
+
+def test_integers_in_a_params_file_are_numbers(peer, start_node, tmp_path):
+    """README: "Integers are fine where a number is expected (`-p hfov:=118`, `balance: 1` in
+    YAML)". A params file with integer hfov, vfov, balance and fov_scale: the CameraInfo is the
+    paper's HERO9 W1 (f* 876.0) with P = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify
+    of its K, D at balance 1."""
+    params = tmp_path / 'ints.yaml'
+    params.write_text(yaml.safe_dump({'/**/zeroshot_calib': {'ros__parameters': {
+        'width': 1920, 'height': 1080, 'hfov': 118, 'vfov': 69, 'balance': 1, 'fov_scale': 1}}}))
+    assert 'balance: 1\n' in params.read_text()
+    start_node('--ros-args', '--params-file', str(params))
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='camera_info')
+    info = infos[-1]
+    K, D = np.array(info.k).reshape(3, 3), np.array(info.d).reshape(4, 1)
+    assert K[0, 0] == pytest.approx(876.0, abs=0.05)
+    P1 = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(K, D, (1920, 1080), np.eye(3), balance=1.0)
+    P0 = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(K, D, (1920, 1080), np.eye(3), balance=0.0)
+    np.testing.assert_allclose(np.array(info.p).reshape(3, 4)[:, :3], P1, atol=3e-3)
+    assert abs(P1[0, 0] - P0[0, 0]) > 50  # balance 1 is not the default 0
+
+
+def _calibration(model):
+    msg = CameraInfo(width=640, height=480, distortion_model=model)
+    msg.k = [300.0, 0.0, 321.0, 0.0, 300.0, 239.0, 0.0, 0.0, 1.0]
+    msg.d = [0.03, -0.01, 0.002, -0.0004] if model == 'equidistant' else [-0.2, 0.05, 0.001, -0.001, 0.0]
+    msg.r = np.eye(3).ravel().tolist()
+    msg.p = [250.0, 0.0, 320.0, 0.0, 0.0, 250.0, 240.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    return msg
+
+
+def test_set_camera_info_adopted_but_not_saved_answers_false_and_says_so(peer, start_node, tmp_path):
+    """README (set_camera_info): "`success` means adopted and saved; a calibration adopted but not
+    saved answers `success: false` and says so". camera_info_url is an .ini file, whose format
+    (camera_calibration_parsers' INI) has no equidistant model: an equidistant calibration is
+    adopted (published) but not saved; a plumb_bob one is adopted and saved (success)."""
+    url = tmp_path / 'calib' / 'cam.ini'
+    node = start_node('--ros-args', '-p', 'width:=640', '-p', 'height:=480', '-p', 'hfov:=100', '-p', 'vfov:=80',
+                      '-p', f'camera_info_url:=file://{url}')
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='camera_info')
+    response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=_calibration('equidistant')))
+    assert not response.success
+    assert 'adopted' in response.status_message and 'NOT saved' in response.status_message, response.status_message
+    peer.spin_until(lambda: infos[-1].k[0] == 300.0 and infos[-1].distortion_model == 'equidistant',
+                    what='the calibration adopted')
+    assert not url.exists()
+    response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=_calibration('plumb_bob')))
+    assert response.success and 'saved' in response.status_message and 'NOT' not in response.status_message
+    lines = url.read_text().splitlines()
+    assert lines[0] == '# Camera intrinsics' and lines[lines.index('width') + 1] == '640'
+    assert [float(x) for x in lines[lines.index('distortion') + 1].split()] == [-0.2, 0.05, 0.001, -0.001, 0.0]
+    peer.spin_until(lambda: infos[-1].distortion_model == 'plumb_bob', what='the plumb_bob calibration adopted')
+    assert node.alive()

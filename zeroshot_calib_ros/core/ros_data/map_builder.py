@@ -1,0 +1,111 @@
+"""Rectification maps built off the ROS executor thread: one low-priority worker that builds
+the maps of a new calibration (then handed back to be swapped in) and of new frame sizes, while
+frames keep flowing with the calibration in force. ROS-free; the node owns one.
+"""
+from __future__ import annotations
+
+import collections
+import os
+import threading
+import time
+from dataclasses import dataclass
+from typing import Optional, Tuple
+
+from .image_frames import ActiveCalibration
+
+REBUILD_MAP_THREADS = 1
+"""Threads building the maps of a new calibration while frames stream: one, so the stream keeps
+the other cores (with one per CPU, the longest gap between 1080p frames during a rebuild on 2
+cores reached 318 ms, with one 40-90 ms; benchmarks/startup_and_memory.py). At start-up and
+when no frame came for IMAGE_IDLE_SECONDS: one per CPU."""
+
+
+@dataclass
+class MapJob:
+    """Maps the builder thread prepares: a calibration's (then swapped in) or a new frame size's."""
+
+    active: ActiveCalibration
+    log: str = ''
+    map_threads: Optional[int] = REBUILD_MAP_THREADS
+    size: Optional[Tuple[int, int]] = None
+    """None: the calibration's configured size, swapped in when built; else another frame size."""
+    values: Optional[dict] = None
+    """The parameter values this calibration came from (restored if its maps cannot be built)."""
+    seconds: float = 0.0
+    error: Optional[BaseException] = None
+
+
+class MapBuilder:
+    """One worker thread for map building, at low CPU priority so the stream keeps its cores.
+
+    First the maps of the newest calibration asked for (a request superseded by a newer one
+    before its turn is dropped), then the maps of new frame sizes (each size once).
+    ``done(job)`` is called on the worker thread when a job ends."""
+
+    def __init__(self, done):
+        self._done = done
+        self._cond = threading.Condition()
+        self._pending: Optional[MapJob] = None
+        self._sizes = collections.deque()
+        self._queued_sizes = set()
+        self._stopped = False
+        self._thread = threading.Thread(target=self._run, name='map_builder', daemon=True)
+        self._thread.start()
+
+    @property
+    def pending(self) -> Optional[MapJob]:
+        return self._pending
+
+    def submit(self, job: MapJob):
+        with self._cond:
+            self._pending = job
+            self._cond.notify()
+
+    def request_size(self, active: ActiveCalibration, width: int, height: int):
+        """Build the maps of ``width`` x ``height`` for ``active`` (once; later calls are no-ops)."""
+        key = (id(active), width, height)
+        with self._cond:
+            if key in self._queued_sizes:
+                return
+            self._queued_sizes.add(key)
+            self._sizes.append(MapJob(active, size=(width, height)))
+            self._cond.notify()
+
+    def stop(self, timeout: float = 5.0):
+        with self._cond:
+            self._stopped = True
+            self._cond.notify()
+        self._thread.join(timeout)
+
+    def _run(self):
+        try:  # Linux: a thread's nice value is its own
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+        except (AttributeError, OSError):
+            pass
+        while True:
+            with self._cond:
+                while self._pending is None and not self._sizes and not self._stopped:
+                    self._cond.wait()
+                if self._stopped:
+                    return
+                job = self._pending if self._pending is not None else self._sizes.popleft()
+            start = time.monotonic()
+            try:
+                if job.size is None:
+                    job.active.prepare(job.map_threads)
+                else:
+                    job.active.build_maps(*job.size, map_threads=job.map_threads)
+            except Exception as exc:  # reported by the node; the calibration in force stays
+                job.error = exc
+            job.seconds = time.monotonic() - start
+            with self._cond:
+                if self._pending is job:
+                    self._pending = None
+                if job.size is not None and job.error:  # a built size stays queued until released
+                    self._queued_sizes.discard((id(job.active), *job.size))
+            self._done(job)
+
+    def forget_size(self, active: ActiveCalibration, width: int, height: int):
+        """Allow ``width`` x ``height`` to be requested again (its maps were released)."""
+        with self._cond:
+            self._queued_sizes.discard((id(active), width, height))
