@@ -32,11 +32,13 @@ def valid_file(cols=4, rows=3):
                        for k in range(2)]}
 
 
+def _containers(children):
+    return st.lists(children, max_size=5) | st.dictionaries(st.text(max_size=8), children, max_size=5)
+
+
 json_values = st.recursive(
     st.none() | st.booleans() | st.integers(-2**70, 2**70) | st.floats(allow_nan=True, allow_infinity=True)
-    | st.text(max_size=12),
-    lambda children: st.lists(children, max_size=5) | st.dictionaries(st.text(max_size=8), children, max_size=5),
-    max_leaves=25)
+    | st.text(max_size=12), _containers, max_leaves=25)
 NASTY = [None, True, 0, -1, 1.5, 2**64, float('nan'), float('inf'), '', '8', [], {}, [1.0], [[1.0, 2.0]],
          'x' * 10000, [float('nan'), 1.0], [1e308, 1e308], [-5.0, 3.0]]
 
