@@ -176,16 +176,44 @@ def test_set_camera_info_adopted_but_not_saved_answers_false_and_says_so(peer, s
                       '-p', f'camera_info_url:=file://{url}')
     infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
     peer.spin_until(lambda: infos, what='camera_info')
-    response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=_calibration('equidistant')))
+    request = SetCameraInfo.Request(camera_info=_calibration('equidistant'))
+    response = peer.call(SetCameraInfo, 'set_camera_info', request)
     assert not response.success
     assert 'adopted' in response.status_message and 'NOT saved' in response.status_message, response.status_message
     peer.spin_until(lambda: infos[-1].k[0] == 300.0 and infos[-1].distortion_model == 'equidistant',
                     what='the calibration adopted')
     assert not url.exists()
-    response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=_calibration('plumb_bob')))
+    request = SetCameraInfo.Request(camera_info=_calibration('plumb_bob'))
+    response = peer.call(SetCameraInfo, 'set_camera_info', request)
     assert response.success and 'saved' in response.status_message and 'NOT' not in response.status_message
     lines = url.read_text().splitlines()
     assert lines[0] == '# Camera intrinsics' and lines[lines.index('width') + 1] == '640'
     assert [float(x) for x in lines[lines.index('distortion') + 1].split()] == [-0.2, 0.05, 0.001, -0.001, 0.0]
     peer.spin_until(lambda: infos[-1].distortion_model == 'plumb_bob', what='the plumb_bob calibration adopted')
     assert node.alive()
+
+
+def test_maps_of_another_frame_size_are_released_after_10_s_unused(monkeypatch):
+    """README (Topics): the maps of frames of another size are "released after 10 s without such a
+    frame". The node's idle limit, and what it releases with it (a clock moved by hand): the
+    other size at 10 s after its last frame, never the configured size."""
+    from zeroshot_calib_ros.core import CameraCalibration, CameraSpec, solve_zero_shot
+    from zeroshot_calib_ros.core.ros_data import image_frames
+    from zeroshot_calib_ros.ros.node import OTHER_SIZE_IDLE_SECONDS
+    assert OTHER_SIZE_IDLE_SECONDS == 10
+    clock = [1000.0]
+    monkeypatch.setattr(image_frames.time, 'monotonic', lambda: clock[0])
+    solution = solve_zero_shot(CameraSpec(160, 90, 118, 69))
+    calibration, _ = CameraCalibration.from_solution(solution)
+    active = image_frames.ActiveCalibration(calibration, solution.camera, 'spec', 0, rectify=True,
+                                            build_maps=False)
+    active.build_maps(160, 90)
+    active.build_maps(320, 180)
+    clock[0] += 9.0
+    assert active.rectifier_for(320, 180) is not None  # a frame of that size at 9 s
+    clock[0] += 9.9
+    assert active.release_unused(OTHER_SIZE_IDLE_SECONDS) == []
+    clock[0] += 0.2  # 10.1 s after that frame
+    assert active.release_unused(OTHER_SIZE_IDLE_SECONDS) == [(320, 180)]
+    clock[0] += 100
+    assert active.release_unused(OTHER_SIZE_IDLE_SECONDS) == [] and active.rectifier_for(160, 90) is not None
