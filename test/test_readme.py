@@ -156,12 +156,14 @@ def printed_lines(output):
 def test_the_readme_evaluate_command_prints_the_documented_output():
     """Run as written, from the repository (the README's relative paths). The numbers are those
     of the README's environment (OpenCV 5); OpenCV 4's own baselines give other numbers and
-    other failed runs, so there the layout of the two tables is compared."""
-    result = cli(EVALUATE_COMMAND)
+    other failed runs, so there only the layout of the two tables is compared, on 3 of the 24
+    single-shot runs (the layout does not depend on their number; 45 s saved)."""
+    opencv5 = cv2.__version__.startswith('5.')
+    result = cli(EVALUATE_COMMAND + ('' if opencv5 else ' --runs 3'))
     assert result.returncode == 0, result.stderr
     printed = printed_lines(result.stdout)
     documented = documented_evaluation(CALIBRATION_DOC).splitlines()
-    if cv2.__version__.startswith('5.'):
+    if opencv5:
         assert printed == documented
     else:
         tables = slice(0, documented.index(next(l for l in documented if l.startswith('runs '))))
