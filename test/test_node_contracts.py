@@ -208,19 +208,23 @@ def test_fit_error_above_half_a_pixel_is_a_warning(peer, start_node):
 
 
 def test_frames_are_checked_whatever_rectify_is(peer, start_node):
-    """With rectify off, a frame claiming 20000x15000 with 16 bytes gets no CameraInfo."""
+    """With rectify off, a frame claiming 20000x15000 with 16 bytes, or one whose data is longer
+    than step x height (sensor_msgs/Image: data is exactly step * rows), gets no CameraInfo."""
     node = start_node('--ros-args', '-p', 'width:=640', '-p', 'height:=480', '-p', 'hfov:=100', '-p', 'vfov:=80')
     infos = peer.collect(CameraInfo, 'camera_info', RELIABLE)
     diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
     pub = peer.image_publisher(RELIABLE)
     liar = image_msg(np.zeros((4, 4), np.uint8), 'mono8', 8_000_000_000)
     liar.width, liar.height, liar.step = 20000, 15000, 20000
+    longer = image_msg(np.zeros((480, 640), np.uint8), 'mono8', 7_000_000_000)
+    longer.data = bytes(640 * 480 + 7)
     bayer = image_msg(np.zeros((480, 640), np.uint8), 'bayer_rggb8', 9_000_000_000)  # not rectifiable: fine
     pub.publish(liar)
+    pub.publish(longer)
     pub.publish(bayer)
     peer.spin_until(lambda: any(m.header.stamp.sec == 9 for m in infos), what='the bayer frame camera_info')
-    peer.spin_until(lambda: diagnostics_value(diagnostics, 'frames_skipped_malformed') == '1', what='the count')
-    assert not any(m.header.stamp.sec == 8 for m in infos)
+    peer.spin_until(lambda: diagnostics_value(diagnostics, 'frames_skipped_malformed') == '2', what='the count')
+    assert not any(m.header.stamp.sec in (7, 8) for m in infos)
     assert node.alive()
 
 
