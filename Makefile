@@ -48,7 +48,7 @@ SOURCES := $(addprefix $(TOP)/,setup.py setup.cfg package.xml) \
 	$(shell cd $(TOP) && find zeroshot_calib_ros config resource -type f \
 		! -name '*.pyc' ! -path '*/__pycache__/*' 2>/dev/null | sed 's|^|$(TOP)/|')
 
-.PHONY: all venv build test test-ros test-jazzy-libs run clean distclean
+.PHONY: all venv build test test-ros test-jazzy-libs run clean distclean mutation
 all: build
 
 venv: $(VSTAMP)
@@ -91,6 +91,12 @@ test-jazzy-libs: $(LSTAMP)
 # `ros2 run zeroshot_calib_ros node --ros-args --params-file PARAMS ARGS` does with a system ROS.
 run: $(BSTAMP)
 	cd $(TOP) && $(ROS_ENV) $(PREFIX)/lib/$(PKG)/node --ros-args --params-file $(PARAMS) $(ARGS)
+
+# `make mutation MUTATION_ARGS='--only ID[,ID] --out FILE'`: the curated deliberate bugs of
+# benchmarks/mutants.py, each applied alone to a copy of the repository and its tests run there
+# (benchmarks/mutation.py; slow: not part of `make test`).
+mutation: $(BSTAMP)
+	cd $(TOP) && $(ROS_ENV) $(VPY) benchmarks/mutation.py $(MUTATION_ARGS)
 
 clean:
 	rm -rf $(TOP)/build $(TOP)/install $(TOP)/log $(TOP)/.pytest_cache \
