@@ -1,6 +1,10 @@
-"""Calibration from straight lines in ordinary images (layer 2; issue 13, not built yet).
+"""Evidence from straight lines in ordinary images (layer 2): a straight 3-D edge images, through
+any central camera, to a curve whose rays lie on one plane through the centre of projection.
 
-The place for the second evidence source beside ``core.checkerboard``: line detection, the
-straightness residual of a lens model, and the refinement of the zero-shot camera from it.
-May import ``core.lens`` and ``core.zeroshot``; never ``core.checkerboard`` or anything above.
+``detect`` finds such curves in raw (fisheye) images: virtual pinhole views of the current
+camera estimate, LSD segments there, sub-pixel edge points mapped back to raw pixels, pieces of
+one line merged across views (``detect_curves``, ``make_views``, ``draw_curves``).
+``straightness`` is the evidence term: the pixel-space (maximum-likelihood) residual of a curve
+under a camera. May import ``core.lens`` and ``core.zeroshot``; never ``core.checkerboard`` or
+anything above (``core.estimation`` combines the evidence).
 """
