@@ -5,9 +5,10 @@ imports ROS, and every module belongs to a layer (a new module must be placed in
     0 core/lens, core/atomic_file     lens models, their ROS fits; writing files (and the version)
     1 core/zeroshot                   spec sheet -> camera (the paper's solver, presets, wide model)
     2 core/checkerboard, core/lines   calibration evidence: chessboard images, straight lines
-    3 core/ros_data                   what ROS carries, without ROS: files, CameraInfo, images, maps
-    4 core (its __init__)             the public API: re-exports
-    5 cli, ros                        the two front ends: zeroshot-calib, the ROS node
+    3 core/estimation                 the MAP fit over all evidence, its uncertainty, the quality gate
+    4 core/ros_data                   what ROS carries, without ROS: files, CameraInfo, images, maps
+    5 core (its __init__)             the public API: re-exports
+    6 cli, ros                        the two front ends: zeroshot-calib, the ROS node
 """
 import ast
 from pathlib import Path
@@ -19,9 +20,10 @@ LAYERS = {
     'core.lens': 0, 'core.atomic_file': 0,
     'core.zeroshot': 1,
     'core.checkerboard': 2, 'core.lines': 2,
-    'core.ros_data': 3,
-    'core': 4,
-    'cli': 5, 'ros': 5,
+    'core.estimation': 3,
+    'core.ros_data': 4,
+    'core': 5,
+    'cli': 6, 'ros': 6,
     '': 0,  # zeroshot_calib_ros/__init__.py: the version, nothing else
 }
 ROS_PACKAGES = {'rclpy', 'rcl_interfaces', 'sensor_msgs', 'diagnostic_msgs', 'std_msgs', 'builtin_interfaces',

@@ -242,8 +242,13 @@ def test_fit_warning_plumb_bob_on_a_fisheye(capsys):
 def test_fit_warning_wide_lens_equidistant(capsys):
     status, out, err = run_main(['solve', '--width', '848', '--height', '800', '--hfov', '206',
                                  '--vfov', '172', '--json'], capsys)
-    assert status == 0 and len(err) == 1 and 'equidistant' in err[0]
+    assert status == 0 and len(err) == 2 and 'equidistant' in err[0]
     assert json.loads(out)['warning'] and json.loads(out)['fit_error_px'] > 10
+    # issue 13: this near-square 206 x 172 degree spec (zero-shot f 838 px, true ~289) is
+    # ill-conditioned, and says so with its uncertainty
+    assert err[1].startswith('zeroshot-calib: warning: ill-conditioned spec (848x800, hfov 206, vfov 172)')
+    assert json.loads(out)['uncertainty_px'] > 0.01 * 848 and err[1][len('zeroshot-calib: warning: '):] in \
+        json.loads(out)['warning']
 
 
 def test_fit_warning_threshold_is_the_core_constant():

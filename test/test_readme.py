@@ -70,11 +70,11 @@ def test_python_snippets_run_as_written_and_print_what_the_readme_says(tmp_path)
 
 
 SAMPLE_COMMAND = 'zeroshot-calib solve --width 1920 --height 1080 --hfov 118 --vfov 69'
-SOLVE_LABELS = ['camera', 'model', 'omega', 'f', 'K', 'D', 'fit error', 'FOV']
+SOLVE_LABELS = ['camera', 'model', 'omega', 'f', 'K', 'D', 'fit error', 'FOV', 'error bar']
 
 
 def labels(output):
-    return [re.split(r'\s{2,}|\s(?=[\[\d])', line, maxsplit=1)[0].strip() for line in output.splitlines()]
+    return [re.split(r'\s{2,}|\s(?=[\[\d-])', line, maxsplit=1)[0].strip() for line in output.splitlines()]
 
 
 def test_the_sample_solve_prints_exactly_the_readme_output():

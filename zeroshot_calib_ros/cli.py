@@ -37,6 +37,7 @@ from .core.ros_data.calibration_file import (DISTORTION_MODELS, CalibrationFileE
 from .core.lens.models import camera_from_calibration
 from .core.checkerboard.corners import CornerSet, detect_corners, parse_board
 from .core.checkerboard.evaluation import evaluate, evaluation_to_dict, format_tables, reprojection_error
+from .core.estimation.terms import FOV_TOLERANCE_DEG
 from .core.lens.fitting import DISTORTION_FITS, FIT_WARNING_PX
 from .core.zeroshot.presets import load_presets, spec_with_preset
 from .core.ros_data.rectify import INTERPOLATIONS, Rectifier, new_camera_matrix
@@ -200,17 +201,36 @@ def _cmd_solve(args):
     solution, calibration, fit = _solve(spec, args, camera_name)
     summary = solution_summary(solution, calibration, fit)
     warnings = _fit_warnings(solution, calibration, fit)
+    warnings += _add_uncertainty(summary, spec, solution, args.fov_tolerance)
     summary['warning'] = warnings
     if args.yaml:
         _save_calibration(calibration, args.yaml)
     if args.json:
         print(json.dumps(summary))
     else:
-        print(summary_text(summary))
+        print(summary_text(summary) + '\n' + _uncertainty_line(summary, args.fov_tolerance))
         if args.yaml:
             print(f'wrote {args.yaml}')
     _print_warnings(warnings)
     return 0
+
+
+def _add_uncertainty(summary, spec, solution, fov_tolerance):
+    """Put the zero-shot camera's error bar (core/estimation/uncertainty.py) into ``summary``;
+    the ill-conditioning warning, if any, as a list."""
+    from .core.estimation.uncertainty import zero_shot_uncertainty  # scipy.optimize: only when asked
+    uncertainty = zero_shot_uncertainty(spec, fov_tolerance, solution)
+    summary['uncertainty_px'] = uncertainty.rms_px
+    summary['uncertainty'] = uncertainty.reason
+    return [uncertainty.warning] if uncertainty.warning else []
+
+
+def _uncertainty_line(summary, fov_tolerance):
+    value = summary['uncertainty_px']
+    if value is None:
+        return f"error bar - ({summary.get('uncertainty') or 'not determined'})"
+    return (f'error bar {value:.2f} px (RMS over the image of the 1-sigma pixel error, FOVs +- '
+            f'{fov_tolerance:g} deg)')
 
 
 BATCH_COLUMNS = ('name', 'width', 'height', 'hfov', 'vfov', 'dfov', 'circle_diameter', 'circle_fov')
@@ -329,6 +349,7 @@ def _solve_batch(args):
             record = {'name': name, 'camera_name': calibration.camera_name,
                       **solution_summary(solution, calibration, fit)}
             warnings = _fit_warnings(solution, calibration, fit)
+            warnings += _add_uncertainty(record, spec, solution, args.fov_tolerance)
             record['warning'] = warnings
             if args.yaml_dir is not None:
                 file_name = _yaml_file_name(name) or f'camera_{number}.yaml'
@@ -458,6 +479,114 @@ def _cmd_rectify(args):
         raise CliError(f'cannot write image {args.output}: OpenCV: {exc}') from None
     if not written:
         raise CliError(f'cannot write image {args.output}')
+    return 0
+
+
+# -- refine: the spec plus straight lines in ordinary images ---------------------------------------
+
+REFINE_KEYS = ('accepted', 'reason', 'images_used', 'lines_used', 'line_residual_px_before',
+               'line_residual_px_after', 'coverage', 'principal_point_shift_px')
+
+
+def _refine_spec(args, width, height):
+    """The spec of `refine`: the images' size, the FOVs of the flags / --preset (whose size, if it
+    has one, must be the images' or of their aspect ratio: a crop is another camera)."""
+    if args.preset:
+        preset_spec = spec_with_preset(args.preset)
+        if preset_spec.width * height != preset_spec.height * width:
+            raise CliError(f'the images are {width}x{height} but --preset {args.preset} is for '
+                           f'{preset_spec.width}x{preset_spec.height}: allowed: the same aspect ratio')
+    fields = {k: getattr(args, k) for k in ('hfov', 'vfov', 'dfov', 'circle_diameter', 'circle_fov')}
+    if not args.preset and all(v is None for v in fields.values()):
+        raise CliError('refine needs the spec sheet: --hfov / --vfov / --dfov, --circle-diameter with '
+                       '--circle-fov, or --preset NAME')
+    return spec_with_preset(args.preset, width=width, height=height, **fields)
+
+
+def _refined_summary(result, spec, solution, args):
+    """`solve --json`'s record of the camera ``refine`` gives (the refined one, or zero-shot's)."""
+    if not result.accepted:
+        calibration, fit = CameraCalibration.from_solution(solution, 'equidistant', args.balance, args.fov_scale,
+                                                           args.camera_name)
+        summary = solution_summary(solution, calibration, fit)
+        return summary, calibration
+    camera = result.camera
+    P = np.hstack([new_camera_matrix(camera, args.balance, args.fov_scale), np.zeros((3, 1))])
+    calibration = CameraCalibration(spec.width, spec.height, camera.K, 'equidistant', camera.D, np.eye(3), P,
+                                    args.camera_name)
+    fovs = camera.fields_of_view()
+    summary = json_safe({
+        'width': spec.width, 'height': spec.height, 'spec': dict(spec.given()),
+        'model': 'refined (Kannala-Brandt)', 'omega': None, 'f': float(camera.K[0, 0]),
+        'cx': float(camera.cx), 'cy': float(camera.cy), 'K': calibration.K.tolist(),
+        'distortion_model': 'equidistant', 'D': calibration.D.tolist(),
+        'fit_error_px': 0.0,  # the refined camera is a Kannala-Brandt camera: its D is exact
+        'P': calibration.P.tolist(),
+        'hfov': fovs.get('hfov'), 'vfov': fovs.get('vfov'), 'dfov': fovs.get('dfov'),
+        'root_found': solution.root_found, 'dfov_residuals': {},
+    })
+    return summary, calibration
+
+
+def _debug_image(path, images, result, solution, args):
+    """The first image with the curves used (green) and rejected (red), and below it the image
+    rectified with the zero-shot camera (left) and with the result (right)."""
+    from .core.lines.detect import draw_curves
+    curves = list(getattr(result, 'curves', None) or [])
+    used_mask = result.used if result.used is not None else np.zeros(len(curves), bool)
+    first = [c for c in curves if c.image in (0, None)]
+    used = [c for c, ok in zip(curves, used_mask) if ok and c.image in (0, None)]
+    rejected = [c for c in first if not any(c is u for u in used)]
+    top = draw_curves(images[0], used, rejected, thickness=2)
+    height, width = top.shape[:2]
+    halves = []
+    P = new_camera_matrix(solution.camera, args.balance, args.fov_scale)  # one P: compare the straightness
+    for camera in (solution.camera, result.camera):
+        rect = Rectifier(camera, P=P).rectify(images[0])
+        rect = cv2.cvtColor(rect, cv2.COLOR_GRAY2BGR) if rect.ndim == 2 else rect[..., :3]
+        halves.append(cv2.resize(rect, (width // 2, height // 2), interpolation=cv2.INTER_AREA))
+    bottom = np.hstack(halves)
+    bottom = np.pad(bottom, ((0, 0), (0, width - bottom.shape[1]), (0, 0)))
+    canvas = np.vstack([top.astype(np.uint8), bottom.astype(np.uint8)])
+    if not cv2.imwrite(path, canvas):
+        raise CliError(f'--debug-image {path}: cannot write image')
+
+
+def _cmd_refine(args):
+    from .core.estimation.refine import refine_from_images  # scipy.optimize: only when asked
+    if args.debug_image:
+        _check_output_image(args.debug_image)
+    images = [_read_image(path) for path in args.images]
+    sizes = sorted({(im.shape[1], im.shape[0]) for im in images})
+    if len(sizes) != 1:
+        listed = ', '.join(f'{w}x{h}' for w, h in sizes)
+        raise CliError(f'the images have different sizes ({listed}): allowed: images of one camera, one size')
+    images = [im if im.dtype == np.uint8 else cv2.convertScaleAbs(im, alpha=255.0 / max(1, int(im.max())))
+              for im in images]
+    (width, height), = sizes
+    spec = _refine_spec(args, width, height)
+    solution = solve_zero_shot(spec, 'auto')
+    result = refine_from_images(spec, images, args.fov_tolerance)
+    summary, calibration = _refined_summary(result, spec, solution, args)
+    warnings = [] if result.accepted else _fit_warnings(solution, calibration, DISTORTION_FITS['equidistant'](solution.camera))
+    summary['uncertainty_px'] = result.uncertainty_px if result.accepted else result.zero_shot_uncertainty_px
+    summary['refinement'] = json_safe({k: getattr(result, k) for k in REFINE_KEYS})
+    if getattr(result, 'zero_shot_uncertainty', None) is not None and result.zero_shot_uncertainty.warning \
+            and not result.accepted:
+        warnings.append(result.zero_shot_uncertainty.warning)
+    summary['warning'] = warnings
+    if args.yaml:
+        _save_calibration(calibration, args.yaml)
+    if args.debug_image:
+        _debug_image(args.debug_image, images, result, solution, args)
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(summary_text(summary) + '\n' + _uncertainty_line(summary, args.fov_tolerance))
+        print(f"refined   {'yes' if result.accepted else 'no'}: {result.reason}")
+        if args.yaml:
+            print(f'wrote {args.yaml}')
+    _print_warnings(warnings)
     return 0
 
 
@@ -657,6 +786,13 @@ def _cmd_evaluate(args):
     return 0
 
 
+def _add_fov_tolerance_argument(parser):
+    parser.add_argument('--fov-tolerance', type=_number, default=FOV_TOLERANCE_DEG, metavar='DEG',
+                        help='how far the spec-sheet FOVs may be off (1 sigma, degrees; default '
+                             f'{FOV_TOLERANCE_DEG:g}): sets the reported uncertainty and, for refine, '
+                             'how much the lines may move the FOVs')
+
+
 def _add_circle_arguments(parser):
     parser.add_argument('--circle-diameter', type=_number, metavar='PX',
                         help='circular fisheye: image-circle diameter (px), with --circle-fov')
@@ -671,7 +807,7 @@ def build_parser() -> argparse.ArgumentParser:
                     'spec-sheet field of view (J.-Y. Lee, CVPR 2021).')
     parser.add_argument('--version', action='version', version=f'%(prog)s {__version__}')
     sub = parser.add_subparsers(dest='command', required=True, metavar='command',
-                                help='solve, presets, rectify, calibrate or evaluate')
+                                help='solve, presets, rectify, refine, calibrate or evaluate')
 
     solve = sub.add_parser('solve', help='calibrate from a spec sheet')
     _add_spec_arguments(solve, size_required=False)
@@ -679,6 +815,7 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument('--method', default='bracketed', choices=('bracketed', 'newton'),
                        help="root finder: bracketed (exact, default) or the paper's damped Newton")
     solve.add_argument('--camera-name', help='camera_name in the YAML file (default: camera)')
+    _add_fov_tolerance_argument(solve)
     solve.add_argument('--json', action='store_true', help='print one JSON object')
     solve.add_argument('--yaml', metavar='FILE', help='write a camera_info_manager calibration file')
     solve.add_argument('--batch', metavar='CSV',
@@ -714,6 +851,26 @@ def build_parser() -> argparse.ArgumentParser:
     rectify.add_argument('--interpolation', type=int, default=1, choices=sorted(INTERPOLATIONS),
                          help='0 nearest, 1 linear, 2 cubic, 4 lanczos4 (default 1)')
     rectify.set_defaults(run=_cmd_rectify, model=None, balance=None, fov_scale=None)
+    refine = sub.add_parser('refine', help='the spec sheet plus straight lines in ordinary images of the camera')
+    refine.add_argument('images', nargs='+', help='images of the camera (one size): rooms, streets, corridors')
+    refine.add_argument('--hfov', type=_number, help='horizontal field of view (deg)')
+    refine.add_argument('--vfov', type=_number, help='vertical field of view (deg)')
+    refine.add_argument('--dfov', type=_number, help='diagonal field of view (deg)')
+    refine.add_argument('--preset', metavar='NAME', help='the FOVs of a published spec (`zeroshot-calib presets`)')
+    _add_circle_arguments(refine)
+    _add_fov_tolerance_argument(refine)
+    refine.add_argument('--balance', type=_number, default=0.0,
+                        help='rectified camera: 0 crops to valid pixels, 1 keeps every edge (default 0)')
+    refine.add_argument('--fov-scale', type=_number, default=1.0,
+                        help='rectified camera: divides its focal length (default 1)')
+    refine.add_argument('--camera-name', default='camera', help='camera_name in the YAML file')
+    refine.add_argument('--json', action='store_true', help='print one JSON object')
+    refine.add_argument('--yaml', metavar='FILE', help='write a camera_info_manager calibration file')
+    refine.add_argument('--debug-image', metavar='OUT.png',
+                        help='write the curves used (green) and rejected (red), and the image rectified '
+                             'before (zero-shot) and after')
+    refine.set_defaults(run=_cmd_refine)
+
     calib = sub.add_parser('calibrate', help='calibrate from chessboard images or a corners file '
                                              '(FC_eq.d., zero-shot start when a spec is given)')
     _add_corner_arguments(calib)

@@ -901,7 +901,7 @@ def summary_text(summary: dict) -> str:
         f"model     {summary['model']}" + (
             '  (no barrel-distortion root: w* = 0, mean perspective focal)'
             if not summary['root_found'] and summary['omega'] == 0 and len(summary['spec']) > 1 else ''),
-        f"omega     {summary['omega']:.9g} (1/px)",
+        'omega     ' + ('- (not the paper\'s model)' if summary['omega'] is None else f"{summary['omega']:.9g} (1/px)"),
         f"f         {summary['f']:.4f} px",
         f"K         [[{K[0][0]:.4f}, 0, {K[0][2]:.2f}], [0, {K[1][1]:.4f}, {K[1][2]:.2f}], [0, 0, 1]]",
         f"D         {summary['distortion_model']} [{', '.join(f'{d:.9g}' for d in summary['D'])}]",

@@ -1,0 +1,320 @@
+"""The estimator of issue 13 (core/lines/straightness.py, core/estimation/): straight lines seen
+through known cameras, the spec's FOVs as soft priors, the uncertainty and the quality gate.
+
+Evidence is synthetic and exact: random straight 3-D segments around a known Kannala-Brandt
+camera (a made-up wide lens, 150 degrees across, principal point 14 px / 9 px off the centre),
+projected through it, with 0.3 px Gaussian noise per coordinate, plus curved arcs (wheels) that
+no camera straightens. References: the known camera, closed forms (equidistant FOVs, the pinhole
+image of a line, d pixel / d f), and scipy's own robust loss.
+"""
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from zeroshot_calib_ros.core.estimation.parameters import KannalaBrandtLayout
+from zeroshot_calib_ros.core.estimation.problem import Problem, robust_factor
+from zeroshot_calib_ros.core.estimation.refine import refine_camera, refine_from_images, zero_shot_camera
+from zeroshot_calib_ros.core.estimation.terms import FovTerm, PrincipalPointPrior
+from zeroshot_calib_ros.core.estimation.uncertainty import (covariance, pixel_grid, pixel_rms,
+                                                            zero_shot_uncertainty)
+from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera, PinholeCamera
+from zeroshot_calib_ros.core.lens.wide_fov import fields_of_view_through_axis
+from zeroshot_calib_ros.core.lines.straightness import StraightnessTerm
+from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
+
+W, H = 1280, 800
+TRUTH = KannalaBrandtCamera(430.0, 430.0, 654.0, 391.0, W, H, [0.035, -0.012, 0.003, -0.0004])
+
+
+class Curve:
+    def __init__(self, points, image, straight=True):
+        self.points, self.image, self.straight = points, image, straight
+
+
+def _rotation(rng, spread_deg):
+    w = np.radians(rng.normal(0, spread_deg, 3))
+    angle = np.linalg.norm(w)
+    k = w / angle
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
+
+
+def line_curves(camera, rng, count, noise=0.3, keep=None, max_angle=None, min_len=0.1, step_px=10.0):
+    """``count`` curves of random 3-D segments seen by ``camera``: each segment passes 1-4 m
+    from the camera in a random direction inside the field, its visible run sampled every
+    ``step_px`` and perturbed by ``noise`` px. ``keep(pixels)`` -> mask limits where points may be."""
+    max_angle = camera.max_field_angle() if max_angle is None else max_angle
+    curves = []
+    while len(curves) < count:
+        theta = math.acos(rng.uniform(math.cos(max_angle), 1.0))
+        phi = rng.uniform(0, 2 * math.pi)
+        centre = rng.uniform(1.0, 4.0) * np.array([math.sin(theta) * math.cos(phi),
+                                                   math.sin(theta) * math.sin(phi), math.cos(theta)])
+        direction = rng.normal(size=3)
+        direction -= direction @ centre / (centre @ centre) * centre
+        direction /= np.linalg.norm(direction)
+        t = np.linspace(-6, 6, 3000)
+        rays = centre[None] + t[:, None] * direction[None]
+        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+        off = np.arctan2(np.hypot(rays[:, 0], rays[:, 1]), rays[:, 2])
+        px = camera.project(rays)
+        ok = (off < max_angle) & np.all(np.isfinite(px), axis=1) & (px[:, 0] > 2) & (px[:, 0] < camera.width - 2) \
+            & (px[:, 1] > 2) & (px[:, 1] < camera.height - 2)
+        if keep is not None:
+            ok &= keep(px)
+        idx = np.nonzero(ok)[0]
+        if idx.size < 10:
+            continue
+        run = max(np.split(idx, np.nonzero(np.diff(idx) > 1)[0] + 1), key=len)
+        pts = px[run]
+        arc = np.r_[0, np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))]
+        if arc[-1] < min_len * camera.width:
+            continue
+        s = np.linspace(0, arc[-1], int(min(40, max(8, arc[-1] / step_px))))
+        pts = np.stack([np.interp(s, arc, pts[:, 0]), np.interp(s, arc, pts[:, 1])], axis=1)
+        # resample exactly on the line's image: project the rays of the interpolated points' parameters
+        tt = np.interp(s, arc, t[run])
+        rq = centre[None] + tt[:, None] * direction[None]
+        pts = camera.project(rq / np.linalg.norm(rq, axis=1, keepdims=True))
+        curves.append(pts + rng.normal(0, noise, pts.shape))
+    return curves
+
+
+def arcs(rng, count, noise=0.3):
+    """Curved distractors: arcs of circles 80-200 px in radius, 100-170 degrees long."""
+    out = []
+    for _ in range(count):
+        r = rng.uniform(80, 200)
+        c = np.array([rng.uniform(0.3, 0.7) * W, rng.uniform(0.3, 0.7) * H])
+        a0 = rng.uniform(0, 2 * math.pi)
+        a = np.linspace(a0, a0 + rng.uniform(1.7, 3.0), 30)
+        out.append(c + r * np.stack([np.cos(a), np.sin(a)], axis=1) + rng.normal(0, noise, (30, 2)))
+    return out
+
+
+def best_rotation_rms(estimate, truth, grid=(33, 19)):
+    """RMS pixel distance over a grid between the truth's pixels and the estimate's projection
+    of the truth's rays after the best rotation (Kabsch, then Gauss-Newton on the pixels)."""
+    pixels = pixel_grid(truth.width, truth.height, grid)
+    rays = truth.unproject(pixels)
+
+    def rot(w):
+        a = np.linalg.norm(w)
+        if a == 0:
+            return np.eye(3)
+        k = w / a
+        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        return np.eye(3) + math.sin(a) * K + (1 - math.cos(a)) * K @ K
+
+    fit = least_squares(lambda w: (estimate.project(rays @ rot(w).T) - pixels).ravel(), np.zeros(3))
+    return math.sqrt(2 * fit.cost / len(pixels))
+
+
+def spec_of(camera):
+    return CameraSpec(camera.width, camera.height, **fields_of_view_through_axis(camera))
+
+
+def views(camera, rng, per_view, n_views=4, arcs_per_view=2, **kwargs):
+    curves = []
+    for v in range(n_views):
+        curves += [Curve(c, v) for c in line_curves(camera, rng, per_view, **kwargs)]
+        curves += [Curve(c, v, straight=False) for c in arcs(rng, arcs_per_view)]
+    return curves
+
+
+@pytest.fixture(scope='module')
+def refined():
+    rng = np.random.default_rng(7)
+    curves = views(TRUTH, rng, 10)
+    return curves, refine_camera(spec_of(TRUTH), curves)
+
+
+# --------------------------------------------------------------------------------- straightness
+
+def test_straightness_of_a_pinhole_is_the_distance_to_the_image_line():
+    """Under a pinhole a 3-D line images to a straight line, so the residual of each point must be
+    its perpendicular distance to the total-least-squares line through the curve's pixels."""
+    rng = np.random.default_rng(1)
+    camera = PinholeCamera(500.0, 500.0, 320.0, 240.0, 640, 480)
+    curves = line_curves(camera, rng, 12, noise=0.5, max_angle=math.radians(35))
+    term = StraightnessTerm(curves)
+    ours = np.linalg.norm(term.point_residuals(camera), axis=1)
+    reference = []
+    for c in curves:
+        centred = c - c.mean(axis=0)
+        normal = np.linalg.svd(centred)[2][-1]
+        reference.append(np.abs(centred @ normal))
+    reference = np.concatenate(reference)
+    # (the plane through the rays is not exactly the pixel-space line: equal to a few 1e-4 px)
+    assert np.sqrt(np.mean(ours ** 2)) == pytest.approx(np.sqrt(np.mean(reference ** 2)), rel=5e-4)
+    assert np.max(np.abs(ours - reference)) < 0.003
+
+
+def test_straightness_is_zero_for_the_true_camera_and_the_noise_for_noisy_points():
+    rng = np.random.default_rng(2)
+    exact = line_curves(TRUTH, rng, 20, noise=0.0)
+    assert StraightnessTerm(exact).rms(TRUTH) < 1e-6
+    noisy = [c + rng.normal(0, 0.3, c.shape) for c in exact]
+    # the perpendicular component of 2-D noise of 0.3 px per coordinate, less the line's 2 dof
+    n = sum(len(c) for c in noisy)
+    expected = 0.3 * math.sqrt((n - 2 * len(noisy)) / n)
+    assert StraightnessTerm(noisy).rms(TRUTH) == pytest.approx(expected, rel=0.08)
+    wrong = KannalaBrandtCamera(430.0, 430.0, 654.0, 391.0, W, H, [0.0, 0.0, 0.0, 0.0])
+    assert StraightnessTerm(exact).rms(wrong) > 1.0
+
+
+def test_straightness_beyond_180_degrees():
+    """A 220-degree equidistant lens: line points whose rays point backwards (z < 0) have a
+    residual like any other, zero under the true camera."""
+    camera = KannalaBrandtCamera(300.0, 300.0, 500.0, 500.0, 1000, 1000, [0.0, 0.0, 0.0, 0.0])
+    assert math.degrees(camera.unproject(np.array([[0.0, 500.0]]))[0] @ [0, 0, 1] * 0 + 2 * 500 / 300) > 190
+    rng = np.random.default_rng(3)
+    curves = line_curves(camera, rng, 15, noise=0.0, max_angle=math.radians(110))
+    rays = camera.unproject(np.concatenate(curves))
+    assert np.sum(rays[:, 2] < 0) > 20
+    assert StraightnessTerm(curves).rms(camera) < 1e-6
+    zoomed = KannalaBrandtCamera(315.0, 315.0, 500.0, 500.0, 1000, 1000, [0.0, 0.0, 0.0, 0.0])
+    assert StraightnessTerm(curves).rms(zoomed) > 0.5
+
+
+# ---------------------------------------------------------------------------------------- terms
+
+def test_fov_term_uses_the_spec_definition_through_the_axis():
+    """Equidistant lens (theta_d = theta): hfov = W / f radians across the principal point's row,
+    also past 180 degrees; the circle FOV = diameter / f."""
+    camera = KannalaBrandtCamera(300.0, 300.0, 500.0, 400.0, 1000, 800, [0.0, 0.0, 0.0, 0.0])
+    term = FovTerm({'hfov': 190.0, 'vfov': 150.0, 'circle': 180.0}, 1000, 800, 1.0, circle_diameter=960.0)
+    hfov, vfov, circle = term.residuals(camera) + term.given
+    assert hfov == pytest.approx(math.degrees(1000 / 300), abs=1e-6)   # 191 degrees
+    assert vfov == pytest.approx(math.degrees(800 / 300), abs=1e-6)
+    assert circle == pytest.approx(math.degrees(960 / 300), abs=1e-6)  # 183 degrees
+
+
+def test_robust_loss_matches_scipys():
+    """The per-term robust loss (residuals rewritten so that plain least squares minimises
+    sum rho) gives the same fit as scipy's own soft_l1 / cauchy on a line with outliers."""
+    rng = np.random.default_rng(4)
+    x = np.linspace(0, 10, 60)
+    y = 2.0 * x + 1.0 + rng.normal(0, 0.2, x.size)
+    y[::9] += 15.0
+    for loss in ('soft_l1', 'cauchy'):
+        c = 0.6
+
+        def corrected(p):
+            r = (p[0] * x + p[1] - y) / 0.2
+            return r * robust_factor(r * r, loss, c / 0.2)
+
+        ours = least_squares(corrected, [0.0, 0.0]).x
+        theirs = least_squares(lambda p: p[0] * x + p[1] - y, [0.0, 0.0], loss=loss, f_scale=c).x
+        assert np.allclose(ours, theirs, atol=1e-5)
+
+
+# ---------------------------------------------------------------------------------- uncertainty
+
+def test_pixel_rms_of_a_focal_variance_is_the_closed_form():
+    """Variance s^2 on f alone: each pixel moves by theta_d s = (r / f) s, r its distance from
+    the principal point, so the RMS over the grid is s sqrt(mean(r^2)) / f."""
+    layout = KannalaBrandtLayout(TRUTH, 0)
+    x = layout.x_from(TRUTH)
+    s = 2.0
+    cov = np.diag([s * s, 0.0, 0.0])
+    px = pixel_grid(W, H)
+    r2 = (px[:, 0] - TRUTH.cx) ** 2 + (px[:, 1] - TRUTH.cy) ** 2
+    expected = s * math.sqrt(np.mean(r2)) / TRUTH.fx
+    assert pixel_rms(layout, x, cov, after_rotation=False) == pytest.approx(expected, rel=1e-4)
+    # a principal-point shift is almost a rotation: what the best rotation leaves is much smaller
+    pp = np.diag([0.0, 25.0, 25.0])
+    assert pixel_rms(layout, x, pp, after_rotation=True) < 0.5 * pixel_rms(layout, x, pp, after_rotation=False)
+
+
+def test_covariance_is_none_when_the_evidence_does_not_determine_the_camera():
+    """Three FOVs and a principal-point prior are five numbers for seven parameters: no
+    covariance, and the reason, instead of a number."""
+    layout = KannalaBrandtLayout(TRUTH, 4)
+    fovs = fields_of_view_through_axis(TRUTH)
+    problem = Problem(layout, [FovTerm(fovs, W, H), PrincipalPointPrior(W, H)])
+    cov, reason = covariance(problem.jacobian(layout.x_from(TRUTH)))
+    assert cov is None and 'does not determine' in reason
+    problem.terms.append(StraightnessTerm(line_curves(TRUTH, np.random.default_rng(8), 20)))
+    cov, _ = covariance(problem.jacobian(layout.x_from(TRUTH)))
+    assert cov is not None and np.all(np.linalg.eigvalsh(cov) > 0)
+
+
+def test_ill_conditioned_near_square_spec_warns():
+    """The issue's example: 848 x 800, 206 x 172 degrees, no dfov (zero-shot f 838 px against 289)."""
+    bad = zero_shot_uncertainty(CameraSpec(848, 800, hfov=206, vfov=172))
+    good = zero_shot_uncertainty(CameraSpec(1920, 1080, hfov=118, vfov=69, dfov=133))
+    assert bad.warning and 'ill-conditioned' in bad.warning and f'{bad.rms_px:.3g}' in bad.warning
+    assert good.warning is None
+    assert bad.rms_px / 848 > 3 * good.rms_px / 1920
+
+
+# ---------------------------------------------------------------------------------- refinement
+
+def test_refined_camera_recovers_the_truth(refined):
+    curves, result = refined
+    assert result.accepted, result.reason
+    camera = result.camera
+    assert best_rotation_rms(camera, TRUTH) < 1.0
+    assert math.hypot(camera.cx - TRUTH.cx, camera.cy - TRUTH.cy) < 3.0
+    # zero-shot (principal point at the centre, the paper's law) is several pixels off
+    assert best_rotation_rms(result.zero_shot_camera, TRUTH) > 3.0
+    used = np.array([u for c, u in zip(curves, result.used) if c.straight])
+    arcs_used = [u for c, u in zip(curves, result.used) if not c.straight]
+    assert len(arcs_used) == 8 and not any(arcs_used) and used.mean() > 0.9
+    assert result.lines_used >= 30 and result.images_used == 4
+    assert result.line_residual_px_after < 0.35 < result.line_residual_px_before
+
+
+def test_uncertainty_is_honest(refined):
+    """True error within 2x the reported uncertainty, refined and zero-shot."""
+    _, result = refined
+    assert best_rotation_rms(result.camera, TRUTH) <= 2 * result.uncertainty_px
+    assert best_rotation_rms(result.zero_shot_camera, TRUTH) <= 2 * result.zero_shot_uncertainty_px
+    assert result.uncertainty_px < result.zero_shot_uncertainty_px
+
+
+def test_too_few_lines_keep_zero_shot():
+    rng = np.random.default_rng(5)
+    curves = [Curve(c, 0) for c in line_curves(TRUTH, rng, 5)]
+    result = refine_camera(spec_of(TRUTH), curves)
+    assert not result.accepted and result.reason.startswith('too few lines')
+    zs = zero_shot_camera(spec_of(TRUTH), W, H)
+    assert np.allclose(result.camera.K, zs.K) and np.allclose(result.camera.D, zs.D)
+    assert result.uncertainty_px == result.zero_shot_uncertainty_px
+
+
+def test_lines_only_near_the_centre_keep_zero_shot():
+    rng = np.random.default_rng(6)
+    near = lambda px: np.hypot(px[:, 0] - W / 2, px[:, 1] - H / 2) < 0.3 * math.hypot(W / 2, H / 2)  # noqa: E731
+    curves = [Curve(c, i % 4) for i, c in enumerate(line_curves(TRUTH, rng, 30, keep=near, min_len=0.05))]
+    result = refine_camera(spec_of(TRUTH), curves)
+    assert not result.accepted and 'near the centre' in result.reason
+
+
+def test_images_of_different_sizes_are_refused():
+    spec = spec_of(TRUTH)
+    with pytest.raises(ValueError, match='different sizes'):
+        refine_from_images(spec, [np.zeros((H, W), np.uint8), np.zeros((H // 2, W // 2), np.uint8)])
+
+
+def test_images_of_two_cameras_are_refused_as_disagreeing():
+    """Two images of the true lens and two of another (same spec, principal point 54 px away):
+    no camera straightens all four, each pair alone is straight: refused, zero-shot kept."""
+    rng = np.random.default_rng(11)
+    other = KannalaBrandtCamera(430.0, 430.0, 600.0, 391.0, W, H, TRUTH.D)
+    curves = views(TRUTH, rng, 10, n_views=2)
+    for c in views(other, rng, 10, n_views=2):
+        curves.append(Curve(c.points, c.image + 2, c.straight))
+    result = refine_camera(spec_of(TRUTH), curves)
+    assert not result.accepted and result.reason.startswith('disagreement between images')
+    assert np.allclose(result.camera.K, result.zero_shot_camera.K)
+
+
+def test_images_without_lines_keep_zero_shot():
+    black = np.zeros((H, W), np.uint8)
+    result = refine_from_images(spec_of(TRUTH), [black, black])
+    assert not result.accepted and result.reason.startswith('too few lines')
+    assert np.allclose(result.camera.K, zero_shot_camera(spec_of(TRUTH), W, H).K)

@@ -1,0 +1,142 @@
+"""`zeroshot-calib refine`: the spec plus straight lines in ordinary images, as a user runs it.
+
+Images are rendered (test/scenes.py) through a known Kannala-Brandt camera with an off-centre
+principal point, so the refined camera is checked against the truth; bad input (images of two
+sizes, a black image, an image without straight lines, two different cameras) gives the
+zero-shot camera with `accepted: false` and the reason, or one error line, never a traceback.
+"""
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from scenes import render
+from zeroshot_calib_ros.cli import main
+from zeroshot_calib_ros.core import CameraCalibration, CameraSpec, solve_zero_shot
+from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
+from zeroshot_calib_ros.core.lens.wide_fov import fields_of_view_through_axis
+
+TRUE = KannalaBrandtCamera(210.0, 210.0, 327.0, 176.0, 640, 360, np.array([0.02, -0.01, 0.003, -0.0005]))
+SPEC_FLAGS = ['--hfov', '172', '--vfov', '97', '--dfov', '198']  # TRUE's FOVs, rounded to 1 degree
+SOLVE_KEYS = {'width', 'height', 'model', 'omega', 'f', 'cx', 'cy', 'K', 'distortion_model', 'D', 'fit_error_px',
+              'hfov', 'vfov', 'dfov', 'P', 'warning'}
+REFINEMENT_KEYS = {'accepted', 'reason', 'images_used', 'lines_used', 'line_residual_px_before',
+                   'line_residual_px_after', 'coverage', 'principal_point_shift_px'}
+
+
+@pytest.fixture(scope='module')
+def views(tmp_path_factory):
+    directory = tmp_path_factory.mktemp('views')
+    paths = []
+    for i, (scene, seed) in enumerate([('room', 1), ('corridor', 2), ('street', 3)]):
+        image, _ = render(TRUE, scene, seed=seed)
+        path = directory / f'view{i}.png'
+        cv2.imwrite(str(path), image)
+        paths.append(str(path))
+    return paths
+
+
+def run(capsys, *argv):
+    status = main(['refine', *argv])
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def dense_rms(camera, truth=TRUE, grid=(33, 19)):
+    """RMS pixel distance, over a grid of the image, between the truth's pixels and where the
+    estimate puts the truth's rays (no rotation: the principal point's error counts too)."""
+    u, v = np.meshgrid(np.linspace(0, truth.width - 1, grid[0]), np.linspace(0, truth.height - 1, grid[1]))
+    pixels = np.stack([u.ravel(), v.ravel()], 1)
+    rays = truth.unproject(pixels)
+    ok = np.isfinite(rays).all(1)
+    return float(np.sqrt(np.mean(np.sum((camera.project(rays[ok]) - pixels[ok]) ** 2, 1))))
+
+
+def test_refine_recovers_the_true_camera_and_writes_it(views, capsys, tmp_path):
+    fovs = fields_of_view_through_axis(TRUE)
+    assert [round(fovs[k]) for k in ('hfov', 'vfov', 'dfov')] == [172, 97, 198]
+    yaml_path = tmp_path / 'refined.yaml'
+    debug = tmp_path / 'debug.png'
+    status, out, err = run(capsys, *views, *SPEC_FLAGS, '--json', '--yaml', str(yaml_path),
+                           '--debug-image', str(debug))
+    assert status == 0, err
+    record = json.loads(out)
+    assert SOLVE_KEYS <= set(record) and REFINEMENT_KEYS == set(record['refinement'])
+    assert record['refinement']['accepted'] is True, record['refinement']['reason']
+    assert record['refinement']['images_used'] == 3
+    refined = CameraCalibration.load(str(yaml_path))
+    camera = KannalaBrandtCamera(refined.K[0, 0], refined.K[1, 1], refined.K[0, 2], refined.K[1, 2], 640, 360,
+                                 refined.D)
+    zero_shot = solve_zero_shot(CameraSpec(640, 360, hfov=172, vfov=97, dfov=198)).camera
+    assert abs(camera.cx - TRUE.cx) < 2 and abs(camera.cy - TRUE.cy) < 2  # zero-shot: the centre, 8 px off
+    assert record['f'] == pytest.approx(TRUE.fx, rel=0.01)
+    assert dense_rms(camera) < 1.0 < dense_rms(zero_shot)
+    assert 0 < record['uncertainty_px'] < 5
+    assert cv2.imread(str(debug)).shape[:2] == (360 + 180, 640)
+
+
+def test_refine_text_output_says_what_it_decided(capsys, tmp_path):
+    path = tmp_path / 'black.png'
+    cv2.imwrite(str(path), np.zeros((360, 640), np.uint8))
+    status, out, err = run(capsys, str(path), *SPEC_FLAGS)
+    assert status == 0, err
+    lines = out.splitlines()
+    assert lines[-1].startswith('refined   no: ') and len(lines[-1]) > len('refined   no: ')
+    assert any(line.startswith('error bar ') for line in lines)
+
+
+def test_images_of_two_sizes_are_one_error_line(views, capsys, tmp_path):
+    small = tmp_path / 'small.png'
+    cv2.imwrite(str(small), np.zeros((180, 320), np.uint8))
+    status, out, err = run(capsys, views[0], str(small), *SPEC_FLAGS)
+    assert status == 2 and out == ''
+    assert err.strip() == ('zeroshot-calib: error: the images have different sizes (320x180, 640x360): '
+                           'allowed: images of one camera, one size')
+
+
+def test_no_spec_is_one_error_line(views, capsys):
+    status, out, err = run(capsys, views[0])
+    assert status == 2 and len(err.strip().splitlines()) == 1 and '--hfov' in err
+
+
+@pytest.mark.parametrize('kind', ['black', 'no straight lines'])
+def test_images_without_lines_give_the_zero_shot_camera_and_the_reason(capsys, tmp_path, kind):
+    if kind == 'black':
+        image = np.zeros((360, 640), np.uint8)
+    else:  # smooth blobs and circles: edges, none straight
+        rng = np.random.default_rng(5)
+        image = cv2.GaussianBlur(rng.integers(0, 256, (360, 640)).astype(np.uint8), (0, 0), 6)
+        for _ in range(12):
+            cv2.circle(image, (int(rng.integers(0, 640)), int(rng.integers(0, 360))), int(rng.integers(10, 80)),
+                       int(rng.integers(0, 256)), 3, cv2.LINE_AA)
+    path = tmp_path / 'image.png'
+    cv2.imwrite(str(path), image)
+    status, out, err = run(capsys, str(path), *SPEC_FLAGS, '--json')
+    assert status == 0, err
+    record = json.loads(out)
+    assert record['refinement']['accepted'] is False and record['refinement']['reason']
+    solution = solve_zero_shot(CameraSpec(640, 360, hfov=172, vfov=97, dfov=198))
+    assert record['f'] == pytest.approx(solution.f) and record['omega'] == pytest.approx(solution.omega)
+    assert math.isfinite(record['uncertainty_px'])
+
+
+def test_images_of_two_cameras_are_not_adopted(views, capsys, tmp_path):
+    other = KannalaBrandtCamera(260.0, 260.0, 300.0, 190.0, 640, 360, np.array([-0.05, 0.01, 0.0, 0.0]))
+    paths = list(views[:2])
+    for i, (scene, seed) in enumerate([('room', 7), ('street', 8)]):
+        image, _ = render(other, scene, seed=seed)
+        path = tmp_path / f'other{i}.png'
+        cv2.imwrite(str(path), image)
+        paths.append(str(path))
+    status, out, err = run(capsys, *paths, *SPEC_FLAGS, '--json')
+    assert status == 0, err
+    record = json.loads(out)
+    refinement = record['refinement']
+    if refinement['accepted']:  # then it must have kept to one camera's lines and be that camera
+        camera = KannalaBrandtCamera(record['K'][0][0], record['K'][1][1], record['cx'], record['cy'], 640, 360,
+                                     np.array(record['D']))
+        assert min(dense_rms(camera), dense_rms(camera, other)) < 1.5, refinement
+    else:
+        assert refinement['reason']

@@ -1,0 +1,154 @@
+"""Evidence terms: one class per kind of evidence, each an unwhitened residual with its own sigma.
+
+Interface (also met by ``core.lines.straightness.StraightnessTerm``): ``name``,
+``residuals(camera)`` -> 1-D array in the term's unit, ``sigma`` (scalar or per residual, same
+unit), ``loss`` (None = least squares, or 'soft_l1' / 'cauchy'), ``loss_scale`` (in sigmas) and
+``group`` (residuals per robust unit). ``Problem`` divides by sigma and applies the loss.
+
+- ``FovTerm``: the spec sheet's FOVs as soft priors: predicted minus given, in degrees, sigma =
+  the tolerance (default 1 degree: a spec sheet's rounding and its unit-to-unit spread). The FOV
+  is the spec's: edge-to-edge through the principal point (hfov from (0, cy) to (W, cy), vfov
+  from (cx, 0) to (cx, H), dfov from (0, 0) to (W, H)), measured through the optical axis when the
+  two edge rays' off-axis angles add up to more than 180 degrees
+  (``wide_fov.fields_of_view_through_axis``); ``circle``: across the image circle's horizontal
+  diameter, centred on the image, at the principal point's row.
+- ``PrincipalPointPrior``: (cx, cy) near the image centre, sigma in pixels. Default
+  ``PRINCIPAL_POINT_SIGMA`` of the image width: on the 770 wide square-pixel profiles of
+  ../shared/data/lens_profiles_dev.csv the offset from the centre has a standard deviation of
+  1.1 % of the width per axis (p90 of |offset| 1.6 %, largest 7.6 %).
+- ``ShapePrior``: the distortion shape near a reference shape (zero-shot's): residuals
+  (theta_d(t_j) - ref(t_j)) / t_j at ``samples`` angles up to the largest field angle, sigma
+  chosen so that the prior bounds the RMS relative deviation over the field by
+  ``sigma_relative``. Default ``SHAPE_SIGMA``: the same 770 profiles deviate from the zero-shot
+  shape (h+v+d) by a median 0.5 %, p90 1.4 %, largest 5.3 %; 2 % is weak beside line evidence
+  (one line constrains the shape to a fraction of a pixel) and honest for zero-shot alone.
+"""
+from __future__ import annotations
+
+import math
+from typing import Dict, Optional
+
+import numpy as np
+
+from ..lens.models import angle_between
+from ..lens.wide_fov import fields_of_view_through_axis
+from ..zeroshot.spec import CameraSpec
+
+PRINCIPAL_POINT_SIGMA = 0.011
+"""Prior standard deviation of each principal-point coordinate, as a fraction of the width."""
+
+SHAPE_SIGMA = 0.005
+"""Prior RMS relative deviation of theta_d from the reference shape over the field."""
+
+FOV_TOLERANCE_DEG = 1.0
+"""Default standard deviation of a spec FOV (degrees)."""
+
+INVALID_FOV_DEG = 90.0
+"""Residual of a FOV whose edge pixel has no ray under the camera."""
+
+
+def _edge_fov(camera, start, end) -> float:
+    """Degrees between the rays of two pixels, through the axis when their off-axis angles add
+    up to more than 180 degrees (``fields_of_view_through_axis``)."""
+    rays = camera.unproject(np.array([start, end], dtype=float))
+    off_axis = np.arctan2(np.linalg.norm(rays[:, :2], axis=-1), rays[:, 2])
+    angle = float(angle_between(rays[0], rays[1]))
+    if off_axis[0] + off_axis[1] > math.pi:
+        angle = 2.0 * math.pi - angle
+    return math.degrees(angle)
+
+
+def spec_fovs(spec: CameraSpec) -> Dict[str, float]:
+    """The FOVs a spec gives, 'circle' included (degrees)."""
+    fovs = dict(spec.given())
+    if getattr(spec, 'circle_fov', None) is not None:
+        fovs['circle'] = spec.circle_fov
+    return fovs
+
+
+class FovTerm:
+    """The spec's FOVs as priors with a tolerance (module docstring)."""
+
+    name = 'fov'
+    group = 1
+    loss = None
+    loss_scale = 1.0
+
+    def __init__(self, fovs: Dict[str, float], width: int, height: int, tolerance_deg: float = FOV_TOLERANCE_DEG,
+                 circle_diameter: Optional[float] = None):
+        if not fovs:
+            raise ValueError('no FOV given: a FOV term needs at least one')
+        if not tolerance_deg > 0 or not math.isfinite(tolerance_deg):
+            raise ValueError(f'fov_tolerance_deg = {tolerance_deg!r} is invalid: allowed: degrees, greater than 0')
+        if 'circle' in fovs and circle_diameter is None:
+            raise ValueError('a circle FOV needs circle_diameter')
+        self.fovs = dict(fovs)
+        self.keys = tuple(self.fovs)
+        self.given = np.array([self.fovs[k] for k in self.keys])
+        self.width, self.height = int(width), int(height)
+        self.circle_diameter = circle_diameter
+        self.sigma = float(tolerance_deg)
+
+    @classmethod
+    def from_spec(cls, spec: CameraSpec, tolerance_deg: float = FOV_TOLERANCE_DEG, width=None, height=None):
+        """The spec's FOVs; at another image size of the same aspect (binned images) the angles
+        are the same and the circle's diameter scales."""
+        width = spec.width if width is None else width
+        height = spec.height if height is None else height
+        circle = getattr(spec, 'circle_diameter', None)
+        if circle is not None:
+            circle = circle * width / spec.width
+        return cls(spec_fovs(spec), width, height, tolerance_deg, circle)
+
+    def predicted(self, camera) -> Dict[str, float]:
+        out = {}
+        if any(k in self.fovs for k in ('hfov', 'vfov', 'dfov')):
+            out.update(fields_of_view_through_axis(camera))
+        if 'circle' in self.fovs:
+            r = self.circle_diameter / 2.0
+            cx = self.width / 2.0
+            out['circle'] = _edge_fov(camera, (cx - r, camera.cy), (cx + r, camera.cy))
+        return {k: out[k] for k in self.keys}
+
+    def residuals(self, camera) -> np.ndarray:
+        predicted = self.predicted(camera)
+        r = np.array([predicted[k] for k in self.keys]) - self.given
+        return np.where(np.isfinite(r), r, INVALID_FOV_DEG)
+
+
+class PrincipalPointPrior:
+    """(cx, cy) - (W/2, H/2), sigma pixels (default ``PRINCIPAL_POINT_SIGMA`` x width)."""
+
+    name = 'principal_point'
+    group = 1
+    loss = None
+    loss_scale = 1.0
+
+    def __init__(self, width: int, height: int, sigma_px: Optional[float] = None):
+        self.centre = np.array([width / 2.0, height / 2.0])
+        self.sigma = float(PRINCIPAL_POINT_SIGMA * width if sigma_px is None else sigma_px)
+
+    def residuals(self, camera) -> np.ndarray:
+        return np.array([camera.cx, camera.cy]) - self.centre
+
+
+class ShapePrior:
+    """theta_d near ``reference.theta_d`` (module docstring); ``theta_max`` radians: the field
+    the prior spans (the reference's largest field angle)."""
+
+    name = 'shape'
+    group = 1
+    loss = None
+    loss_scale = 1.0
+
+    def __init__(self, reference, theta_max: float, sigma_relative: float = SHAPE_SIGMA, samples: int = 8):
+        self.theta = np.linspace(theta_max / samples, theta_max, samples)
+        with np.errstate(invalid='ignore'):
+            self.reference = np.asarray(reference.theta_d(self.theta), dtype=float)
+        self.sigma_relative = float(sigma_relative)
+        self.sigma = self.sigma_relative * math.sqrt(samples)
+
+    def residuals(self, camera) -> np.ndarray:
+        with np.errstate(invalid='ignore', over='ignore'):
+            r = (np.asarray(camera.theta_d(self.theta), dtype=float) - self.reference) / self.theta
+        return np.where(np.isfinite(r), r, 1.0)
