@@ -59,6 +59,13 @@ class TabulatedKannalaBrandtCamera(KannalaBrandtCamera):
         return KannalaBrandtCamera(self.fx, self.fy, self.cx, self.cy, self.width, self.height, self.D)
 
 
+def deviation_steps(theta_max: float, order: int) -> np.ndarray:
+    """Steps of d_1..d_order (coefficients of theta^3 .. theta^(2 order + 1)) that each move
+    theta_d at ``theta_max`` by 1e-7 theta_max."""
+    theta_max = max(float(theta_max), 1e-3)
+    return 1e-7 / theta_max ** (2 * np.arange(1, order + 1))
+
+
 class KannalaBrandtLayout:
     """x = (f, cx, cy, d1..dn) -> KannalaBrandtCamera with k = base.D + (d, 0...)."""
 
@@ -72,6 +79,7 @@ class KannalaBrandtLayout:
         self.width = int(width if width is not None else base.width)
         self.height = int(height if height is not None else base.height)
         self.names = ('f', 'cx', 'cy') + tuple(f'd{j + 1}' for j in range(self.order))
+        self.theta_max = float(base.max_field_angle()) if np.isfinite(base.max_field_angle()) else 1.0
 
     def camera(self, x) -> KannalaBrandtCamera:
         x = np.asarray(x, dtype=float)
@@ -86,8 +94,11 @@ class KannalaBrandtLayout:
         return np.r_[f, camera.cx, camera.cy, d]
 
     def steps(self, x) -> np.ndarray:
+        """Finite-difference steps: 1e-6 f for f and the principal point; for d_j a step that
+        moves theta_d at the field's edge by 1e-7 theta_max (a fixed step in k_j would vanish
+        below rounding on a narrow lens, where theta_max^9 is 1e-8)."""
         x = np.asarray(x, dtype=float)
-        return np.r_[1e-6 * x[0], 1e-6 * x[0], 1e-6 * x[0], np.full(self.order, 1e-7)]
+        return np.r_[1e-6 * x[0], 1e-6 * x[0], 1e-6 * x[0], deviation_steps(self.theta_max, self.order)]
 
     def with_order(self, order: int) -> 'KannalaBrandtLayout':
         return KannalaBrandtLayout(self.base, order, self.width, self.height)
@@ -151,9 +162,10 @@ class ZeroShotLayout:
     """x = (f, a, cx, cy, d1..d4) -> LawCamera (module docstring). ``a_floor``: a pinhole
     solution (a = 0) is linearised at this small a instead, where the law is still smooth."""
 
-    def __init__(self, law: FisheyeProjection, width: int, height: int):
+    def __init__(self, law: FisheyeProjection, width: int, height: int, theta_max: float = 1.0):
         self.law = law
         self.width, self.height = int(width), int(height)
+        self.theta_max = float(theta_max)
         self.names = ('f', 'a', 'cx', 'cy', 'd1', 'd2', 'd3', 'd4')
 
     def camera(self, x) -> LawCamera:
@@ -165,4 +177,5 @@ class ZeroShotLayout:
 
     def steps(self, x) -> np.ndarray:
         x = np.asarray(x, dtype=float)
-        return np.r_[1e-6 * x[0], 1e-6 * max(abs(x[1]), 1e-3), 1e-6 * x[0], 1e-6 * x[0], np.full(4, 1e-7)]
+        return np.r_[1e-6 * x[0], 1e-6 * max(abs(x[1]), 1e-3), 1e-6 * x[0], 1e-6 * x[0],
+                     deviation_steps(self.theta_max, 4)]

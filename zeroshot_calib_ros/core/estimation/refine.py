@@ -9,7 +9,10 @@ prior and the shape prior. The refined camera replaces the zero-shot one only wh
   image: at least ``MIN_COVERAGE`` of the cells of an 8 x 6 grid over the image, and reaching
   ``MIN_REACH`` of the way from the centre to the corners (distortion lives at the periphery);
 - the images agree: no image with at least 3 curves loses more than half of them as outliers
-  while the others keep theirs (two cameras, or one image of another lens);
+  while the others keep theirs; and when one of the two checks below fails, each image is fitted
+  alone: if every image alone is straightened to less than ``SPLIT_RATIO`` of its residual
+  under the joint fit, the reason is "disagreement between images" (two cameras, two zoom
+  settings), which names the cause better than the check that caught it;
 - the spec agrees: no FOV of the result misses the spec's by more than ``MAX_FOV_SIGMAS``
   tolerances;
 - held-out curves (every ``HOLD_OUT_EVERY``-th straight curve, left out of a second fit) are
@@ -173,8 +176,8 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
                   solution=None) -> Refinement:
     """Refine the zero-shot camera of ``spec`` with ``curves`` (module docstring).
 
-    ``curves``: ``core.lines.detect.Curve`` objects (or (N, 2) arrays of raw pixels, one image
-    each unless they carry ``image``), from images of ``width`` x ``height`` (default the spec's;
+    ``curves``: ``core.lines.detect.Curve`` objects (or (N, 2) arrays of raw pixels, counted as
+    one image), from images of ``width`` x ``height`` (default the spec's;
     another size of the same aspect is a binned or resized mode). ``initial``: a camera to start
     from (e.g. an earlier refinement); the zero-shot camera stays the reference of the gate.
     ``solution``: the zero-shot solution if already computed."""
