@@ -86,7 +86,7 @@ test: $(BSTAMP) $(LSTAMP)
 	@mkdir -p $(TOP)/log
 	@cd $(TOP) && { ZEROSHOT_ROS_FREE_ONLY=1 $(LIBS_VENV)/bin/python -m pytest -q -p no:cacheprovider test \
 		$(PYTEST_ARGS) > log/test-jazzy-libs.log 2>&1; echo $$? > log/test-jazzy-libs.rc; } & \
-	cd $(TOP) && $(ROS_ENV) $(VPY) -m pytest -q test $(PYTEST_ARGS); ros=$$?; wait; \
+	cd $(TOP) && $(ROS_ENV) $(VPY) -m pytest -q --durations=15 test $(PYTEST_ARGS); ros=$$?; wait; \
 	echo '--- ROS-free tests on Ubuntu 24.04 libraries (log/test-jazzy-libs.log) ---'; \
 	cat log/test-jazzy-libs.log; libs=$$(cat log/test-jazzy-libs.rc); \
 	test $$ros -eq 0 && test $$libs -eq 0

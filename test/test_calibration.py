@@ -401,13 +401,13 @@ def test_cli_calibrate_json_and_yaml(corners_file, tmp_path, capsys):
 def test_cli_calibrate_single_shot_with_spec(corners_file, capsys):
     spec = spec_of(TRUE)
     assert main(['calibrate', '--corners', str(corners_file), '--single', 'view-03.png',
-                 '--hfov', str(spec.hfov), '--vfov', str(spec.vfov)]) == 0
+                 '--hfov', str(spec.hfov), '--vfov', str(spec.vfov), '--spec-as', 'start']) == 0
     out = capsys.readouterr().out
     assert 'FC_eq.d.+ZS (start: zero-shot), principal point fixed' in out
     assert 'images    1 (view-03.png)' in out and 'eps all' in out
 
 
-@pytest.mark.parametrize('spec_args', [['--hfov', '150', '--vfov', '95'], []],
+@pytest.mark.parametrize('spec_args', [['--hfov', '150', '--vfov', '95', '--spec-as', 'start'], []],
                          ids=['rounded-spec-sheet', 'no-spec'])
 def test_cli_single_shot_recovers_the_known_camera_and_eps_all_is_the_results(tmp_path, capsys, spec_args):
     """`calibrate --single IMG` on corners of a known camera (f 300 px, w f = 1.05, centred; 0.2 px

@@ -560,3 +560,90 @@ def test_solve_method_newton_is_the_papers_iteration(capsys):
     one_line_error(status, err, 'Newton left the valid range')
     status, out, err = run_main(args + ['--json'], capsys)
     assert status == 0 and json.loads(out)['root_found']
+
+
+# -- issue 13: calibrate with the spec as evidence (--spec-as, --fov-tolerance) --------------------
+
+def board_with_spec_corners(tmp_path):
+    """Corners of a known Kannala-Brandt fisheye (test_board_fit.TRUTH), 3 views, 0.2 px noise,
+    and its true FOVs as the spec."""
+    from test_board_fit import TRUTH, board_views, true_spec
+    corners, _ = board_views(TRUTH, 3, seed=3, noise=0.2)
+    path = tmp_path / 'kb_corners.json'
+    corners.save(str(path))
+    spec = true_spec()
+    return path, ['--hfov', repr(spec.hfov), '--vfov', repr(spec.vfov)]
+
+
+def test_calibrate_with_a_spec_uses_it_as_evidence_by_default(tmp_path, capsys):
+    """`calibrate --single IMG --hfov --vfov` (no --spec-as): the MAP fit, a Kannala-Brandt camera
+    written as ROS equidistant with an error bar. Its printed K and D, through OpenCV alone
+    (PnP + cv2.fisheye.projectPoints), reproduce the printed eq.-20 error on all images, and the
+    camera is the truth's (f within 1 %, principal point within 3 px)."""
+    from opencv_reference import board_points, eq20_squared_errors, rms
+    from test_board_fit import BOARD, TRUTH
+    from zeroshot_calib_ros.core.checkerboard.corners import CornerSet
+    path, spec_args = board_with_spec_corners(tmp_path)
+    status, out, err = run_main(['calibrate', '--corners', str(path), '--single', 'view-01.png', *spec_args,
+                                 '--json'], capsys)
+    assert status == 0, err
+    record = json.loads(out)
+    assert record['spec_as'] == 'evidence' and record['method'].startswith('MAP')
+    assert record['distortion_model'] == 'equidistant' and record['fit_error_px'] == 0.0
+    assert record['f'] == pytest.approx(TRUTH.fx, rel=0.01)
+    assert math.hypot(record['cx'] - TRUTH.cx, record['cy'] - TRUTH.cy) < 3.0
+    assert record['uncertainty_px'] == record['fit']['uncertainty_px'] and 0 < record['uncertainty_px'] < 10
+    corners = CornerSet.load(str(path))
+    eps = rms(eq20_squared_errors('equidistant', record['K'], record['D'],
+                                  board_points(BOARD.cols, BOARD.rows, BOARD.square), corners.corners))
+    assert record['eps_all_px'] == pytest.approx(eps, abs=2e-3)
+    status, out, err = run_main(['calibrate', '--corners', str(path), '--single', 'view-01.png', *spec_args], capsys)
+    lines = out.splitlines()
+    assert status == 0 and any(x.startswith('method    MAP') and 'spec as evidence' in x for x in lines)
+    assert f"error bar {record['uncertainty_px']:.2f} px" in out and 'agrees' in out
+
+
+def test_calibrate_spec_as_start_is_the_earlier_fc_zs(tmp_path, capsys):
+    """`--spec-as start`: FC_eq.d. from the zero-shot camera, the same camera as the library's
+    calibrate(corners, 'fc+zs'), with no error bar; the default differs from it."""
+    from zeroshot_calib_ros.core.checkerboard.calibration import calibrate as library_calibrate
+    from zeroshot_calib_ros.core.checkerboard.corners import CornerSet
+    from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
+    path, spec_args = board_with_spec_corners(tmp_path)
+    status, out, err = run_main(['calibrate', '--corners', str(path), '--single', 'view-01.png', *spec_args,
+                                 '--spec-as', 'start', '--json'], capsys)
+    assert status == 0, err
+    record = json.loads(out)
+    corners = CornerSet.load(str(path))
+    spec = CameraSpec(corners.width, corners.height, hfov=float(spec_args[1]), vfov=float(spec_args[3]))
+    expected = library_calibrate(corners, 'fc+zs', [1], spec)
+    assert record['method'] == 'FC_eq.d.+ZS' and record['init'] == 'zero-shot' and record['spec_as'] == 'start'
+    assert record['f'] == pytest.approx(expected.camera.f, rel=1e-9)
+    assert record['uncertainty_px'] is None
+    status, out, _ = run_main(['calibrate', '--corners', str(path), '--single', 'view-01.png', *spec_args,
+                               '--json'], capsys)
+    assert abs(json.loads(out)['f'] - record['f']) > 1e-6
+
+
+def test_calibrate_fov_tolerance_moves_the_fit_and_bad_values_are_one_line(tmp_path, capsys):
+    """--fov-tolerance is the FOVs' sigma: with the hfov given 3 degrees wide, a tight tolerance
+    pulls the fitted hfov nearer the given one than the default; 0 and a --principal-point
+    choice with the spec as evidence are one-line errors; --help says which mode is which."""
+    path, spec_args = board_with_spec_corners(tmp_path)
+    wide = ['--hfov', repr(float(spec_args[1]) + 3.0), '--vfov', spec_args[3]]
+    fitted = {}
+    for tol in ('1', '0.2'):
+        status, out, err = run_main(['calibrate', '--corners', str(path), '--single', 'view-00.png', *wide,
+                                     '--fov-tolerance', tol, '--json'], capsys)
+        assert status == 0, err
+        fitted[tol] = json.loads(out)['fit']['fovs_fitted']['hfov']
+    given = float(wide[1])
+    assert abs(fitted['0.2'] - given) < abs(fitted['1'] - given)
+    status, _, err = run_main(['calibrate', '--corners', str(path), *spec_args, '--fov-tolerance', '0'], capsys)
+    one_line_error(status, err, '--fov-tolerance')
+    status, _, err = run_main(['calibrate', '--corners', str(path), *spec_args, '--principal-point', 'fixed'], capsys)
+    one_line_error(status, err, '--spec-as start')
+    status, out, _ = run_main(['calibrate', '--help'], capsys)
+    text = ' '.join(out.split())
+    assert status == 0 and '--spec-as {evidence,start}' in text
+    assert 'evidence (default): MAP' in text and 'start: FC_eq.d. from the zero-shot camera' in text

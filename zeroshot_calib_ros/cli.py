@@ -34,7 +34,7 @@ from . import __version__
 from .core.checkerboard.calibration import as_solution, calibrate
 from .core.ros_data.calibration_file import (DISTORTION_MODELS, CalibrationFileError, CameraCalibration,
                                     json_safe, solution_summary, summary_text)
-from .core.lens.models import camera_from_calibration
+from .core.lens.models import RadialCamera, camera_from_calibration
 from .core.checkerboard.corners import CornerSet, detect_corners, parse_board
 from .core.checkerboard.evaluation import evaluate, evaluation_to_dict, format_tables, reprojection_error
 from .core.estimation.terms import FOV_TOLERANCE_DEG
@@ -656,6 +656,11 @@ def _cmd_calibrate(args):
             raise CliError(f'board {corners.board.size} not found in {args.single}')
         views = [corners.index(args.single)]
     spec = _fov_spec(args, corners)
+    if spec is not None and args.spec_as == 'evidence':
+        if args.principal_point != 'auto':
+            raise CliError(f'--principal-point {args.principal_point} is for --spec-as start (FC_eq.d.): the '
+                           'spec-as-evidence fit always frees the principal point under its prior')
+        return _calibrate_with_spec(args, corners, views, spec)
     principal_point = {'auto': None, 'fixed': False, 'free': True}[args.principal_point]
     result = calibrate(corners, 'fc+zs' if spec is not None else 'fc', views, spec, principal_point)
     if not result.ok:
@@ -675,6 +680,9 @@ def _cmd_calibrate(args):
         'rejected_corners': [r.to_dict() for r in result.rejected],
         'duplicate_views': [{'image': a, 'same_as': b, 'rms_difference_px': d}
                             for a, b, d in result.duplicates],
+        'spec_as': 'start' if spec is not None else None, 'uncertainty_px': None,
+        'uncertainty': 'not estimated for FC_eq.d. (no spec, or the spec as a start): give the spec with '
+                       '--spec-as evidence (the default) for an error bar',
     })
     if views is not None and len(corners) > 1:
         summary['eps_all_px'] = reprojection_error(result.camera, corners).rms
@@ -699,6 +707,87 @@ def _cmd_calibrate(args):
     ]
     if 'eps_all_px' in summary:
         lines.append(f"eps all   {summary['eps_all_px']:.4f} px (eq. 20 on all {len(corners)} images)")
+    lines += [f'note      {n}' for n in summary['notes']]
+    if args.yaml:
+        lines.append(f'wrote {args.yaml}')
+    print('\n'.join(lines))
+    return 0
+
+
+class _RadialView(RadialCamera):
+    """A fx = fy Kannala-Brandt camera seen as a RadialCamera, for the ROS plumb_bob fit."""
+
+    def __init__(self, camera):
+        super().__init__(camera.fx, camera.cx, camera.cy, camera.width, camera.height)
+        self.kb = camera
+
+    def theta_d(self, theta):
+        return self.kb.theta_d(theta)
+
+    def theta_from_theta_d(self, theta_d):
+        return self.kb.theta_from_theta_d(theta_d)
+
+
+def _calibrate_with_spec(args, corners, views, spec):
+    """`calibrate` with the spec as evidence: the MAP over corners, FOVs and priors
+    (core/estimation/board_fit.py); the camera is Kannala-Brandt (ROS equidistant, exact)."""
+    from .core.estimation.board_fit import METHOD_LABEL, fit_board  # scipy.optimize: only when asked
+    if not (args.fov_tolerance > 0 and math.isfinite(args.fov_tolerance)):
+        raise CliError(f'--fov-tolerance {args.fov_tolerance:g} is invalid: allowed: degrees, greater than 0')
+    fit = fit_board(corners, spec, views, fov_tolerance_deg=args.fov_tolerance)
+    camera = fit.camera
+    P = np.hstack([new_camera_matrix(camera, args.balance, args.fov_scale), np.zeros((3, 1))])
+    if args.distortion_model == 'equidistant':
+        D, fit_error = np.asarray(camera.D, float), 0.0  # a Kannala-Brandt camera: its D is exact
+        fit_warnings = []
+    else:
+        distortion = DISTORTION_FITS[args.distortion_model](_RadialView(camera))
+        D, fit_error = distortion.D, distortion.max_error_px
+        fit_warnings = [] if fit_error <= FIT_WARNING_PX else [
+            f'the ROS {args.distortion_model} fit of the calibrated camera is off by up to {fit_error:.3g} px in '
+            f'the image (fit error; warning above {FIT_WARNING_PX:g} px), so tools that rectify with its D '
+            'coefficients are that far off: use --distortion-model equidistant (exact)']
+    calibration = CameraCalibration(corners.width, corners.height, camera.K, args.distortion_model, D, np.eye(3), P,
+                                    args.camera_name)
+    fovs = camera.fields_of_view()
+    used = [corners.names[v] for v in fit.views]
+    summary = {
+        'width': corners.width, 'height': corners.height, 'spec': dict(spec.given()),
+        'model': 'calibrated (Kannala-Brandt)', 'omega': None, 'f': float(camera.fx),
+        'cx': float(camera.cx), 'cy': float(camera.cy), 'K': calibration.K.tolist(),
+        'distortion_model': args.distortion_model, 'D': calibration.D.tolist(), 'fit_error_px': fit_error,
+        'P': calibration.P.tolist(), 'hfov': fovs.get('hfov'), 'vfov': fovs.get('vfov'), 'dfov': fovs.get('dfov'),
+        'root_found': True, 'dfov_residuals': {},
+        'warning': fit_warnings + list(fit.warnings),
+        'method': METHOD_LABEL, 'init': 'zero-shot', 'a': None, 'spec_as': 'evidence',
+        'principal_point': 'free (prior)', 'images': len(used), 'image_names': used,
+        'board': {'cols': corners.board.cols, 'rows': corners.board.rows, 'square': corners.board.square},
+        'rms_px': fit.rms_px, 'notes': list(fit.notes),
+        'rejected_corners': [r.to_dict() for r in fit.rejected],
+        'duplicate_views': [], 'uncertainty_px': fit.uncertainty_px, 'uncertainty': fit.uncertainty.reason,
+        'fit': fit.summary(),
+    }
+    if views is not None and len(corners) > 1:
+        summary['eps_all_px'] = reprojection_error(camera, corners).rms
+    if args.yaml:
+        _save_calibration(calibration, args.yaml)
+    _print_warnings(summary['warning'])
+    if args.json:
+        print(json.dumps(json_safe(summary)))
+        return 0
+    given = ', '.join(f'{k} {v:g} -> {fit.fovs_fitted[k]:.2f}' for k, v in fit.fovs_given.items())
+    lines = summary_text(json_safe(summary)).splitlines() + [
+        f"method    {METHOD_LABEL}, spec as evidence (FOVs +- {args.fov_tolerance:g} deg), start: zero-shot, "
+        f"principal point free (prior), k1..k{fit.order} moved",
+        f"images    {len(used)}" + (f" ({os.path.basename(used[0])})" if len(used) == 1 else '')
+        + f", board {corners.board.size}, square {corners.board.square:g} m",
+        f"rms       {fit.rms_px:.4f} px (reprojection, on the calibration images)",
+    ]
+    if 'eps_all_px' in summary:
+        lines.append(f"eps all   {summary['eps_all_px']:.4f} px (eq. 20 on all {len(corners)} images)")
+    lines.append(_uncertainty_line(summary, args.fov_tolerance))
+    lines.append(f"spec      {given} deg (given -> fitted): "
+                 + ('agrees' if fit.spec_agrees else 'DISAGREES with the corners (see the warning)'))
     lines += [f'note      {n}' for n in summary['notes']]
     if args.yaml:
         lines.append(f'wrote {args.yaml}')
@@ -871,14 +960,29 @@ def build_parser() -> argparse.ArgumentParser:
                              'before (zero-shot) and after')
     refine.set_defaults(run=_cmd_refine)
 
-    calib = sub.add_parser('calibrate', help='calibrate from chessboard images or a corners file '
-                                             '(FC_eq.d., zero-shot start when a spec is given)')
+    calib = sub.add_parser('calibrate', help='calibrate from chessboard images or a corners file (with a spec: '
+                                             'MAP over corners and the spec FOVs; without: FC_eq.d.)',
+                           description='Checkerboard calibration. Without a spec: FC_eq.d. (the paper\'s model) '
+                                       'from the default start. With --hfov / --vfov / --dfov: by default the spec '
+                                       'is EVIDENCE (--spec-as evidence): one MAP fit of a Kannala-Brandt camera '
+                                       'over the corners, the spec FOVs (+- --fov-tolerance) and stated priors, '
+                                       'reporting uncertainty_px; --spec-as start is the earlier behaviour, '
+                                       'FC_eq.d. started from the zero-shot camera (FC_eq.d.+ZS), the spec '
+                                       'forgotten after the start.')
     _add_corner_arguments(calib)
+    calib.add_argument('--spec-as', default='evidence', choices=('evidence', 'start'),
+                       help='with a spec: evidence (default): MAP over corners + spec FOVs + priors, '
+                            'Kannala-Brandt camera with uncertainty_px; start: FC_eq.d. from the zero-shot '
+                            'camera (FC_eq.d.+ZS), the spec used only as the start')
+    calib.add_argument('--fov-tolerance', type=_number, default=FOV_TOLERANCE_DEG, metavar='DEG',
+                       help='with --spec-as evidence: how far the spec FOVs may be off (1 sigma, degrees; '
+                            f'default {FOV_TOLERANCE_DEG:g})')
     calib.add_argument('--single', metavar='IMAGE',
                        help='single-shot: calibrate on this image only (one of the inputs, a name in '
                             '--corners, or an image file on its own)')
     calib.add_argument('--principal-point', default='auto', choices=('auto', 'fixed', 'free'),
-                       help='fixed at the image centre or free; auto: free from 3 images on (default)')
+                       help='--spec-as start or no spec: fixed at the image centre or free; auto: free from 3 '
+                            'images on (default); with the spec as evidence it is free under its prior')
     _add_output_arguments(calib)
     calib.add_argument('--camera-name', default='camera', help='camera_name in the YAML file')
     calib.add_argument('--json', action='store_true', help='print one JSON object')

@@ -1,0 +1,175 @@
+"""The checkerboard-corner evidence term: detected corners against the board seen through a camera.
+
+Residual: for every image i and corner j, detected pixel minus the projection of the board point
+through the candidate camera at the image's board pose, two numbers per corner, in pixels (the
+detector's noise is in pixels; this is FC's residual, ``calibration._FcProblem``, for any camera
+model).
+
+Board poses are nuisance parameters, ELIMINATED per evaluation (variable projection, as
+``core.lines.straightness`` eliminates its planes): ``residuals(camera)`` first solves every
+image's pose (rvec, tvec) for the current camera by Gauss-Newton on the same pixel residuals
+(all images batched, central-difference pose Jacobians, step halving), warm-started from the
+poses of the previous evaluation (the first from ``pose.board_poses``: robust PnP through the
+camera), to convergence (step below ``POSE_TOL``). The residuals are then those of the reduced
+problem r(c, p*(c)), so a finite-difference Jacobian with respect to the camera alone is the
+reduced problem's Jacobian and the covariance of a fit accounts for the poses. Why not append
+the poses to the parameter vector: the estimator's layouts map a vector to a camera and every
+term sees only the camera (``core.estimation.problem``); elimination keeps that contract, and a
+single or a few images cost 6 parameters each in a 6 x 6 solve per image.
+
+Rejected corners (``weights`` 0) leave both the pose solve and the residuals (their residuals
+are 0). Points the camera cannot project (NaN) count ``invalid_px`` per coordinate.
+
+The term follows the estimation package's term interface (``name``, ``residuals(camera)``
+unwhitened, ``sigma``, ``loss``, ``loss_scale``, ``group``) without importing it: core/checkerboard
+sits below core/estimation.
+"""
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from ..lens.models import CameraModel
+from .pose import board_poses, transform
+
+INVALID_PX = 50.0
+"""Residual (px per coordinate) of a corner the camera cannot project."""
+POSE_TOL = 1e-11
+"""Gauss-Newton on the poses stops when every step is below this (rad; relative for t)."""
+POSE_ITERATIONS = 30
+
+
+class CornerTerm:
+    """Pixel residuals of checkerboard corners with the board poses eliminated (module docstring).
+
+    ``object_points`` (M, 3) board points; ``image_points`` (n, M, 2) detected corners;
+    ``sigma``: corner noise per coordinate (px); ``loss`` / ``loss_scale``: the robust loss per
+    corner (both coordinates together), in sigmas; ``weights`` (n, M): 0 leaves a corner out."""
+
+    name = 'corners'
+    group = 2
+
+    def __init__(self, object_points, image_points, sigma: float = 0.5, loss: Optional[str] = 'soft_l1',
+                 loss_scale: float = 3.0, weights=None, invalid_px: float = INVALID_PX, poses=None):
+        self.obj = np.asarray(object_points, dtype=float).reshape(-1, 3)
+        self.img = np.asarray(image_points, dtype=float).reshape(-1, len(self.obj), 2)
+        if self.img.shape[0] == 0:
+            raise ValueError('no images: a corner term needs at least one')
+        if len(self.obj) < 4:
+            raise ValueError(f'{len(self.obj)} board points: a corner term needs at least 4')
+        self.n, self.m = self.img.shape[:2]
+        self.weights = (np.ones((self.n, self.m)) if weights is None
+                        else np.asarray(weights, dtype=float).reshape(self.n, self.m).copy())
+        self.sigma = float(sigma)
+        self.loss = loss
+        self.loss_scale = float(loss_scale)
+        self.invalid_px = float(invalid_px)
+        self._poses = None if poses is None else np.asarray(poses, dtype=float).reshape(self.n, 6).copy()
+
+    def copy(self, sigma: Optional[float] = None, weights=None) -> 'CornerTerm':
+        """The same corners with another sigma / weights (and the current poses as the start)."""
+        return CornerTerm(self.obj, self.img, self.sigma if sigma is None else sigma, self.loss,
+                          self.loss_scale, self.weights if weights is None else weights, self.invalid_px,
+                          self._poses)
+
+    # -- poses ----------------------------------------------------------------------------------
+    def _raw(self, camera, poses):
+        """(K, M, 2) detected minus projected through ``poses`` (K, 6), weighted, NaN kept."""
+        with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
+            projected = camera.project(transform(poses[:, :3], poses[:, 3:], self.obj))
+        return (self.img - projected) * self.weights[..., None]
+
+    def _penalised(self, camera, poses):
+        r = self._raw(camera, poses)
+        return np.where(np.isfinite(r), r, self.invalid_px)
+
+    def _start_poses(self, camera) -> np.ndarray:
+        if self._poses is not None:
+            return self._poses.copy()
+        found = board_poses(camera, self.obj, self.img)
+        return np.hstack([found.rvecs, found.tvecs])
+
+    def solve_poses(self, camera: CameraModel) -> np.ndarray:
+        """(n, 6) rvec, tvec of every image minimising its pixel residuals through ``camera``."""
+        poses = self._start_poses(camera)
+        r = self._penalised(camera, poses).reshape(self.n, -1)
+        cost = np.sum(r * r, axis=1)
+        active = np.ones(self.n, dtype=bool)
+        for _ in range(POSE_ITERATIONS):
+            idx = np.flatnonzero(active)
+            if idx.size == 0:
+                break
+            p = poses[idx]
+            h = 1e-6 * np.maximum(1.0, np.abs(p))
+            plus = p[:, None, :] + np.eye(6)[None] * h[:, None, :]
+            minus = p[:, None, :] - np.eye(6)[None] * h[:, None, :]
+            both = np.concatenate([plus, minus], axis=1).reshape(-1, 6)
+            img = self.img[idx]
+            with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
+                proj = camera.project(transform(both[:, :3], both[:, 3:], self.obj)).reshape(idx.size, 12, self.m, 2)
+            w = self.weights[idx][:, None, :, None]
+            res = np.where(np.isfinite(proj), (img[:, None] - proj) * w, self.invalid_px)
+            J = ((res[:, :6] - res[:, 6:]) / (2 * h[:, :, None, None])).reshape(idx.size, 6, -1)
+            J = np.swapaxes(J, 1, 2)  # (k, 2M, 6): d residual / d pose
+            A = np.swapaxes(J, 1, 2) @ J
+            g = (np.swapaxes(J, 1, 2) @ r[idx][..., None])[..., 0]
+            A = A + 1e-12 * np.einsum('kii->ki', A)[:, :, None] * np.eye(6)
+            try:
+                step = -np.linalg.solve(A, g[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                step = -np.stack([np.linalg.lstsq(a, b, rcond=None)[0] for a, b in zip(A, g)])
+            done = np.zeros(idx.size, dtype=bool)
+            scale = np.ones(idx.size)
+            for _half in range(8):
+                trial = p + scale[:, None] * step
+                new_r = self._penalised_rows(camera, trial, idx)
+                new_cost = np.sum(new_r * new_r, axis=1)
+                better = new_cost <= cost[idx] * (1 + 1e-12) + 1e-300
+                take = better & ~done
+                poses[idx[take]] = trial[take]
+                r[idx[take]] = new_r[take]
+                cost[idx[take]] = new_cost[take]
+                done |= better
+                if np.all(done):
+                    break
+                scale = np.where(done, scale, 0.5 * scale)
+            tol = POSE_TOL * np.c_[np.ones((idx.size, 3)),
+                                   np.repeat(np.maximum(1.0, np.linalg.norm(p[:, 3:], axis=1))[:, None], 3, 1)]
+            small = np.all(np.abs(scale[:, None] * step) <= tol, axis=1)
+            active[idx[small | ~done]] = False
+        self._poses = poses.copy()
+        return poses
+
+    def _penalised_rows(self, camera, poses, idx):
+        with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
+            projected = camera.project(transform(poses[:, :3], poses[:, 3:], self.obj))
+        r = (self.img[idx] - projected) * self.weights[idx][..., None]
+        return np.where(np.isfinite(r), r, self.invalid_px).reshape(len(idx), -1)
+
+    # -- residuals ------------------------------------------------------------------------------
+    def point_residuals(self, camera: CameraModel) -> np.ndarray:
+        """(n, M, 2) detected minus projected at the eliminated poses; NaN where not projectable;
+        rejected corners included (unweighted), so that they can be judged."""
+        poses = self.solve_poses(camera)
+        with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
+            projected = camera.project(transform(poses[:, :3], poses[:, 3:], self.obj))
+        return self.img - projected
+
+    def residuals(self, camera: CameraModel) -> np.ndarray:
+        """Unwhitened residuals (2 n M,), px; rejected corners 0, unprojectable ``invalid_px``."""
+        return self._penalised(camera, self.solve_poses(camera)).ravel()
+
+    def rms(self, camera: CameraModel) -> float:
+        """RMS corner distance (px) over the corners in use; inf when one cannot be projected."""
+        d2 = np.sum(self.point_residuals(camera) ** 2, axis=-1)[self.weights > 0]
+        return float(np.sqrt(np.mean(d2))) if np.all(np.isfinite(d2)) else float('inf')
+
+    @property
+    def poses(self) -> Optional[np.ndarray]:
+        """(n, 6) the poses of the last evaluation (None before the first)."""
+        return None if self._poses is None else self._poses.copy()
+
+    @property
+    def corners_used(self) -> int:
+        return int(np.count_nonzero(self.weights > 0))

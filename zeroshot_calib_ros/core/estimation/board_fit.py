@@ -1,0 +1,267 @@
+"""Checkerboard calibration with the spec sheet as evidence: one MAP fit over corners, FOVs and priors.
+
+``fit_board(corners, spec, views)``: the camera is a Kannala-Brandt k1..k4 camera (ROS
+``equidistant``, ``parameters.KannalaBrandtLayout``: f, cx, cy and deviations from the zero-shot
+shape), started from and shaped around the zero-shot camera (``refine.zero_shot_camera``:
+'auto', fitted to KB4). Its evidence:
+
+- ``core.checkerboard.corner_term.CornerTerm``: the detected corners, the board poses eliminated
+  per evaluation, robust soft_l1 per corner at ``LOSS_SCALE`` sigmas;
+- ``terms.FovTerm``: the spec's FOVs, sigma = the tolerance (default 1 degree);
+- ``terms.PrincipalPointPrior`` (1.1 % of the width per axis) and ``terms.ShapePrior`` around the
+  zero-shot shape at ``terms.SHAPE_SIGMA`` (0.5 % RMS relative): the priors of the zero-shot
+  camera's own error bar (``uncertainty.zero_shot_uncertainty``), so that the fit is the zero-shot
+  posterior updated by the corners. Not the line refinement's 4x wider shape prior
+  (``refine.REFINE_SHAPE_SIGMA``): lines reach the periphery, while one board view often covers a
+  small part of the image, and with the shape prior at 2 % single views of the shared real set
+  extrapolated their shape to the rest of the image (3 of 24 single-image runs worse than
+  zero-shot alone by more than 0.2 px, against 1 at 0.5 %; benchmarks/results/board_with_spec.md).
+  A heavy-tailed (Cauchy) prior at 0.5 % was worse still on real views (one run at 6.6 px).
+
+This is what "the spec as evidence" means, against ``calibration.calibrate`` 'fc+zs' where the
+spec only gives the start of FC and is forgotten after the first iteration.
+
+Steps, as ``fit.fit_lines`` does for lines:
+
+1. Robust fit at the highest order from the zero-shot camera (corner sigma ``INITIAL_SIGMA_PX``).
+2. Corner noise sigma estimated from the fit (sum of squared distances over 2 M n - 6 n - p
+   degrees of freedom, floor ``MIN_SIGMA_PX``), so that the weight of the corners against the
+   FOVs is the noise the images actually have (model misfit included); corners farther than
+   max(``calibration.OUTLIER_K_SIGMA`` sigma, ``calibration.OUTLIER_MIN_PX``) are left out (FC's
+   rule) and the fit repeated, until the set is stable.
+3. Model order: k1..kn free for n from 4 down, the least chi^2 + 2 (number of parameters) (AIC,
+   ``fit.ORDER_PENALTY``) kept; the uncertainty is the highest order's at the chosen camera
+   plus the restriction's bias in quadrature (as ``refine``).
+
+The result reports ``uncertainty_px`` (``uncertainty``: RMS over the image of the 1-sigma pixel
+displacement after the best rotation), the corner RMS, the FOVs of the result against the spec's
+and ``spec_agrees``: False when a FOV misses the spec by more than ``refine.MAX_FOV_SIGMAS``
+tolerances or the FOVs' chi^2 exceeds its ``FOV_AGREEMENT`` quantile, with a warning that names
+them: the corners contradict the spec sheet (a wrong FOV, a
+crop, another lens) and the MAP is a compromise between them that should not be trusted
+silently.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+from scipy.stats import chi2 as chi2_distribution
+
+from ..checkerboard.calibration import OUTLIER_K_SIGMA, OUTLIER_MIN_PX, CalibrationError, RejectedCorner
+from ..checkerboard.corner_term import CornerTerm
+from ..checkerboard.corners import CornerSet, check_corner_set
+from ..lens.models import KannalaBrandtCamera
+from ..zeroshot.solver import solve_zero_shot
+from ..zeroshot.spec import CameraSpec
+from .fit import ORDER_PENALTY
+from .parameters import KB_TERMS, KannalaBrandtLayout
+from .problem import Problem
+from .refine import MAX_FOV_SIGMAS, zero_shot_camera
+from .terms import FOV_TOLERANCE_DEG, SHAPE_SIGMA, FovTerm, PrincipalPointPrior, ShapePrior
+from .uncertainty import Uncertainty, displacement, pixel_grid, problem_uncertainty, zero_shot_uncertainty
+
+INITIAL_SIGMA_PX = 0.5
+MIN_SIGMA_PX = 0.05
+"""Floor of the estimated corner noise (px): no detector beats it, and a smaller value would let
+a few perfectly fitted corners outvote the spec."""
+LOSS_SCALE = 3.0
+MAX_ROUNDS = 4
+FOV_AGREEMENT = 0.9973
+"""The FOVs agree with the corners when no FOV of the result misses the spec's by more than
+``refine.MAX_FOV_SIGMAS`` tolerances and their chi^2 (squared misses in tolerances, summed) is below
+this quantile of the chi^2 distribution with one degree per FOV (the 3-sigma probability)."""
+METHOD_LABEL = 'MAP (corners + spec FOVs + priors)'
+
+
+@dataclass
+class BoardFit:
+    """The MAP calibration from corners and the spec (module docstring)."""
+
+    camera: KannalaBrandtCamera
+    uncertainty_px: Optional[float]
+    uncertainty: Uncertainty = field(repr=False)
+    views: tuple
+    rms_px: float
+    """RMS corner distance (px) over the corners used, at the eliminated poses."""
+    sigma_px: float
+    """Estimated corner noise per coordinate (px)."""
+    order: int
+    """Number of Kannala-Brandt coefficients the evidence moved (0..4)."""
+    fov_tolerance_deg: float
+    fovs_given: Dict[str, float]
+    fovs_fitted: Dict[str, float]
+    fov_residuals_deg: Dict[str, float]
+    """Fitted minus given (degrees)."""
+    spec_agrees: bool
+    zero_shot_camera: KannalaBrandtCamera
+    zero_shot_uncertainty_px: Optional[float]
+    rvecs: np.ndarray = field(repr=False)
+    tvecs: np.ndarray = field(repr=False)
+    rejected: List[RejectedCorner] = field(default_factory=list)
+    warnings: List[str] = field(default_factory=list)
+    notes: List[str] = field(default_factory=list)
+    corners_used: int = 0
+    evaluations: int = 0
+
+    def extrinsics(self):
+        return list(zip(self.rvecs, self.tvecs))
+
+    def summary(self) -> dict:
+        """JSON-ready record of the fit (the CLI's ``fit`` key)."""
+        return {
+            'method': METHOD_LABEL, 'uncertainty_px': self.uncertainty_px,
+            'uncertainty': self.uncertainty.reason, 'rms_px': self.rms_px, 'sigma_px': self.sigma_px,
+            'order': self.order, 'fov_tolerance_deg': self.fov_tolerance_deg,
+            'fovs_given': dict(self.fovs_given), 'fovs_fitted': dict(self.fovs_fitted),
+            'fov_residuals_deg': dict(self.fov_residuals_deg),
+            'fov_residuals_sigmas': {k: v / self.fov_tolerance_deg for k, v in self.fov_residuals_deg.items()},
+            'spec_agrees': self.spec_agrees, 'corners_used': self.corners_used,
+            'rejected_corners': [r.to_dict() for r in self.rejected],
+            'zero_shot_uncertainty_px': self.zero_shot_uncertainty_px,
+            'principal_point_shift_px': float(math.hypot(self.camera.cx - self.zero_shot_camera.cx,
+                                                         self.camera.cy - self.zero_shot_camera.cy)),
+            'evaluations': self.evaluations,
+        }
+
+
+def estimate_sigma(term: CornerTerm, camera, parameters: int) -> float:
+    """Corner noise (px per coordinate): squared distances over 2 M n - 6 n - parameters."""
+    r = term.point_residuals(camera)
+    d2 = np.sum(r * r, axis=-1)[term.weights > 0]
+    d2 = d2[np.isfinite(d2)]
+    dof = max(2 * len(d2) - 6 * term.n - parameters, 1)
+    return max(float(math.sqrt(np.sum(d2) / dof)), MIN_SIGMA_PX)
+
+
+def _outliers(term: CornerTerm, camera, sigma: float) -> np.ndarray:
+    d = np.linalg.norm(term.point_residuals(camera), axis=-1)
+    d = np.where(np.isfinite(d), d, np.inf)
+    return d > max(OUTLIER_K_SIGMA * sigma, OUTLIER_MIN_PX)
+
+
+def _truncated_start(layout: KannalaBrandtLayout, camera: KannalaBrandtCamera) -> np.ndarray:
+    """f, cx, cy of ``camera`` and the deviations of a lower order that follow its theta_d best."""
+    x0 = layout.x_from(camera)
+    if layout.order:
+        theta = np.linspace(0.0, layout.theta_max, 64)
+        target = camera.theta_d(theta) - layout.base.theta_d(theta)
+        basis = np.stack([theta ** (2 * j + 3) for j in range(layout.order)], axis=1)
+        x0[3:] = np.linalg.lstsq(basis, target, rcond=None)[0]
+    return x0
+
+
+def _uncertainty(top: Problem, top_x, camera, order) -> Uncertainty:
+    """The highest order's covariance at the chosen camera, plus the chosen order's bias (its
+    distance from the highest order's solution, RMS over the image) in quadrature."""
+    layout = top.layout
+    x = layout.x_from(camera)
+    u = problem_uncertainty(top, x)
+    if u.rms_px is None or order == layout.order:
+        return u
+    rays = camera.unproject(pixel_grid(camera.width, camera.height))
+    rays = rays[np.all(np.isfinite(rays), axis=1)]
+    bias = displacement(camera, layout.camera(top_x), rays)
+    bias_rms = float(np.sqrt(np.nanmean(np.sum(bias * bias, axis=1))))
+    total = math.hypot(u.rms_px, bias_rms)
+    return Uncertainty(total, f'{u.reason}, order {order} of {layout.order}: {bias_rms:.3g} px from the '
+                       'highest order added', covariance=u.covariance, names=u.names)
+
+
+def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int]] = None,
+              fov_tolerance_deg: float = FOV_TOLERANCE_DEG, orders=range(KB_TERMS + 1),
+              max_nfev: int = 60, shape_sigma: float = SHAPE_SIGMA) -> BoardFit:
+    """The MAP calibration of ``views`` (all images by default) of ``corners`` with ``spec``'s FOVs
+    as evidence (module docstring); ``orders``: the model orders tried; ``shape_sigma``: the shape
+    prior's RMS relative deviation. Input errors raise CalibrationError / CornersError / SpecError."""
+    if spec is None or not (spec.given() or getattr(spec, 'circle_fov', None) is not None):
+        raise CalibrationError('the spec as evidence needs a FOV: give hfov / vfov / dfov')
+    views = tuple(range(len(corners))) if views is None else tuple(int(v) for v in views)
+    if not views:
+        raise CalibrationError('no images to calibrate on: allowed: at least 1')
+    bad = [v for v in views if not 0 <= v < len(corners)]
+    if bad:
+        raise CalibrationError(f'image index {bad[0]} is invalid: allowed: 0 to {len(corners) - 1}')
+    report = check_corner_set(corners, views)
+    W, H = corners.width, corners.height
+    if (W, H) != (spec.width, spec.height):
+        raise CalibrationError(f'the spec is {spec.width}x{spec.height} but the images are {W}x{H}')
+    solution = solve_zero_shot(spec, 'auto')
+    zs = zero_shot_camera(spec, W, H, solution)
+    zs_u = zero_shot_uncertainty(spec, fov_tolerance_deg, solution)
+    zs_u_px = zs_u.rms_px
+    fov = FovTerm.from_spec(spec, fov_tolerance_deg, W, H)
+    theta_max = float(zs.max_field_angle()) if math.isfinite(zs.max_field_angle()) else math.pi / 2
+    priors = [fov, PrincipalPointPrior(W, H), ShapePrior(zs, theta_max, shape_sigma)]
+    orders = sorted(orders)
+    top = KannalaBrandtLayout(zs, orders[-1], W, H)
+    x = top.x_from(zs)
+    term = CornerTerm(corners.object_points(), corners.corners[list(views)], INITIAL_SIGMA_PX, 'soft_l1', LOSS_SCALE)
+    evaluations = 0
+
+    def solve(layout, t, x0):
+        nonlocal evaluations
+        problem = Problem(layout, [t] + priors)
+        with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
+            solution_ = problem.solve(x0, max_nfev=max_nfev)
+        evaluations += solution_.evaluations
+        return problem, solution_
+
+    sigma = INITIAL_SIGMA_PX
+    for _ in range(MAX_ROUNDS):
+        problem, sol = solve(top, term.copy(sigma=sigma), x)
+        x = sol.x
+        camera = top.camera(x)
+        sigma = estimate_sigma(term, camera, x.size)
+        rejected = _outliers(term, camera, sigma)
+        weights = np.where(rejected, 0.0, 1.0)
+        if np.array_equal(weights, term.weights):
+            break
+        term = term.copy(weights=weights)
+    term = term.copy(sigma=sigma)
+    fits, score = {}, {}
+    for order in reversed(orders):
+        layout = top.with_order(order)
+        x0 = x if order == orders[-1] else _truncated_start(layout, top.camera(x))
+        problem, sol = solve(layout, term.copy(), x0)
+        fits[order] = (layout, problem, sol)
+        score[order] = 2.0 * sol.cost + (3 + order) * ORDER_PENALTY
+        if score[order] > min(score.values()):
+            break
+    order = min(score, key=score.get)
+    layout, problem, sol = fits[order]
+    camera = layout.camera(sol.x).plain()
+    _, top_problem, top_sol = fits[orders[-1]]
+    u = _uncertainty(top_problem, top_sol.x, camera, order)
+    u_px = u.rms_px
+
+    fitted = fov.predicted(camera)
+    residuals = {k: float(fitted[k] - fov.fovs[k]) for k in fov.keys}
+    z = {k: v / fov_tolerance_deg for k, v in residuals.items()}
+    chi2 = float(sum(v * v for v in z.values())) if all(math.isfinite(v) for v in z.values()) else math.inf
+    agrees = bool(max(abs(v) for v in z.values()) <= MAX_FOV_SIGMAS
+                  and chi2 <= float(chi2_distribution.ppf(FOV_AGREEMENT, len(z))))
+    warnings = [zs_u.warning] if zs_u.warning else []
+    if not agrees:
+        listed = ', '.join(f'{k} {fitted[k]:.1f} against {fov.fovs[k]:g} ({z[k]:+.1f} sigma)' for k in fov.keys)
+        warnings.append(
+            f'the corners disagree with the spec: the MAP camera has {listed} (tolerance {fov_tolerance_deg:g} '
+            f'degrees; chi^2 {chi2:.1f} for {len(z)} FOVs); the result is a compromise between them: check the '
+            'FOVs (a crop or another lens?), or calibrate with --spec-as start')
+    final = term.copy()
+    poses = final.solve_poses(camera)
+    d = np.linalg.norm(final.point_residuals(camera), axis=-1)
+    used = final.weights > 0
+    rms = float(np.sqrt(np.mean(d[used] ** 2))) if np.all(np.isfinite(d[used])) else float('inf')
+    rejected_list = [RejectedCorner(corners.names[views[i]], int(j), float(d[i, j]))
+                     for i, j in zip(*np.nonzero(~used))]
+    notes = list(report.notes)
+    if rejected_list:
+        notes.append(f'rejected {len(rejected_list)} outlier corner(s) (error > max({OUTLIER_K_SIGMA:g} sigma, '
+                     f'{OUTLIER_MIN_PX:g} px)), left out of the fit: '
+                     + ', '.join(str(r) for r in rejected_list[:10]) + (' ...' if len(rejected_list) > 10 else ''))
+    return BoardFit(camera, u_px, u, views, rms, sigma, order, fov_tolerance_deg, dict(fov.fovs), fitted,
+                    residuals, agrees, zs, zs_u_px, poses[:, :3].copy(), poses[:, 3:].copy(), rejected_list,
+                    warnings, notes, int(used.sum()), evaluations)
