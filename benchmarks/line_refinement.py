@@ -19,6 +19,12 @@ Evidence, ``--views`` views of one scene per profile:
   ``--image-width`` px wide (the renderer's cost is per pixel); errors are reported at 1920 px
   as everywhere.
 
+- ``--evidence real``: the shared real images ``../shared/data/ros_fisheye_800x503`` (24 images
+  800x503 of a wide lens with a checkerboard in each; its edges count as lines like any other,
+  its geometry is not used), refined from ``--real-images`` of them (default 4 and all 24,
+  evenly through the set), the spec's hfov / vfov derived from the authors' ``ost.yaml`` read
+  as Kannala-Brandt (as ``paper_table4.py`` does), errors against ``ost.yaml``.
+
 Metric: the lens benchmark's (``lens_profiles.best_rotation_rms``): RMS pixel error over a
 33 x 19 grid after the best rotation, scaled to a 1920-px-wide image, for the zero-shot camera
 (KB4 fit of 'auto', what the product publishes) and for the camera ``refine_camera`` returns
@@ -27,7 +33,12 @@ whose true error is within 2x the reported ``uncertainty_px``.
 
     .venv/bin/python benchmarks/line_refinement.py --evidence ideal --profiles 80 \\
         --out benchmarks/results/line_refinement.md
-    .venv/bin/python benchmarks/line_refinement.py --evidence images --profiles 20
+    .venv/bin/python benchmarks/line_refinement.py --evidence images --profiles 60 \
+        --render-cache /tmp/renders [--shard K/2 --dump DIR]   # then --rows-from DIR for the report
+    .venv/bin/python benchmarks/line_refinement.py --evidence real --real-images 4,24
+
+Constants are tuned on ``--tuning-set`` (the profiles halfway between the default ones) and
+reported on the default set.
 """
 from __future__ import annotations
 
@@ -40,6 +51,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional
 
+import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -78,10 +90,14 @@ def wide_square_profiles(csv=lp.DEFAULT_CSV):
     return out
 
 
-def evenly(items, n):
+def evenly(items, n, shift: float = 0.0):
+    """``n`` items evenly through ``items``; ``shift`` 0.5 takes those halfway between (a disjoint
+    set of the same spread when n is well under len(items) / 2: the tuning set)."""
     if n >= len(items):
         return list(items)
-    return [items[int(i)] for i in np.linspace(0, len(items) - 1, n).round()]
+    step = (len(items) - 1) / max(n - 1, 1)
+    picks = np.linspace(0, len(items) - 1, n) + shift * step
+    return [items[int(i)] for i in np.clip(picks, 0, len(items) - 1).round()]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -214,6 +230,8 @@ class Row:
     curves: int = 0
     order: Optional[int] = None
     failure: str = ''
+    seconds_total: float = 0.0
+    """Wall time of the profile (rendering included)."""
 
 
 def _scaled_profile(p, fovs, width):
@@ -247,8 +265,16 @@ def evaluate(p, fovs, args, seed) -> Row:
             scene = scenes.make_scene(args.scene, seed % 1000)
             images = []
             for v in range(args.views):
+                cache = (Path(args.render_cache) / f'{args.scene}_{p.index}_{gt.width}_{seed}_{v}.png'
+                         if args.render_cache else None)
+                if cache is not None and cache.exists():
+                    images.append(cv2.imread(str(cache), cv2.IMREAD_UNCHANGED))
+                    continue
                 pose = scenes.random_pose(scene, seed % 1000 * 10 + v)
                 image, _ = scenes.render(gt, scene, pose=pose, seed=seed % 1000 * 10 + v)
+                if cache is not None:
+                    cache.parent.mkdir(parents=True, exist_ok=True)
+                    cv2.imwrite(str(cache), image)
                 images.append(image)
             start = time.perf_counter()
             result = refine_from_images(spec, images, fov_tolerance_deg=args.fov_tolerance)
@@ -256,6 +282,12 @@ def evaluate(p, fovs, args, seed) -> Row:
         row.failure = f'{type(exc).__name__}: {exc}'
         return row
     row.seconds_per_image = (time.perf_counter() - start) / args.views
+    if args.dump:
+        import pickle
+        os.makedirs(args.dump, exist_ok=True)
+        with open(os.path.join(args.dump, f'{p.index}.pkl'), 'wb') as f:
+            pickle.dump({'gt': gt, 'spec': spec, 'result': result,
+                         'curves': curves if args.evidence == 'ideal' else None}, f)
     pixels = lp.pixel_grid(gt.width, gt.height)
     rays = gt.unproject(pixels)
     scale = lp.REFERENCE_WIDTH / gt.width
@@ -366,19 +398,96 @@ def report(rows: List[Row], args, seconds: float, command: str, table: bool = Tr
                  + ', '.join(f'{k}: {v}' for k, v in sorted(orders.items())))
     if not table:
         return '\n'.join(lines) + '\n'
-    lines += ['', '| profile | size | zero-shot px | returned px | accepted | lines | order | u zero-shot '
+    lines += ['', '| profile | size | zero-shot px | returned px | fitted px | accepted | lines | order | u zero-shot '
                   '| u returned | reason |',
-              '|---|---|---:|---:|---|---:|---:|---:|---:|---|']
+              '|---|---|---:|---:|---:|---|---:|---:|---:|---:|---|']
     for r in rows:
-        lines.append(f'| {r.path} | {r.width}x{r.height} | {_f(r.zs_px)} | {_f(r.out_px)} | '
+        lines.append(f'| {r.path} | {r.width}x{r.height} | {_f(r.zs_px)} | {_f(r.out_px)} | {_f(r.fit_px)} | '
                      f'{"yes" if r.accepted else "no"} | {r.lines} | {r.order} | {_f(r.zs_u)} | {_f(r.out_u)} | '
                      f'{(r.failure or r.reason)[:120]} |')
     return '\n'.join(lines) + '\n'
 
 
+# ---------------------------------------------------------------------------------------------
+# The shared real images: ros_fisheye_800x503 against its authors' ost.yaml
+
+DEFAULT_REAL = ROOT.parent / 'shared' / 'data' / 'ros_fisheye_800x503'
+
+
+def real_spec_and_truth(data: Path):
+    """(spec, authors' camera) of the shared set: hfov / vfov from ost.yaml read as
+    Kannala-Brandt (as benchmarks/paper_table4.py derives them; the set has no spec sheet)."""
+    from zeroshot_calib_ros.core.lens.models import camera_from_calibration
+    from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+    ost = CameraCalibration.load(str(data / 'ost.yaml'))
+    authors = camera_from_calibration('equidistant', ost.K, ost.D, ost.width, ost.height)
+    fovs = authors.fields_of_view()
+    return CameraSpec(ost.width, ost.height, hfov=fovs['hfov'], vfov=fovs['vfov']), authors
+
+
+def real_images(data: Path, count: Optional[int]):
+    """``count`` of the set's images, evenly through it (all when None)."""
+    paths = sorted(data.glob('left-*.png'))
+    if count is not None and count < len(paths):
+        paths = [paths[int(i)] for i in np.linspace(0, len(paths) - 1, count).round()]
+    return paths
+
+
+def real_run(data: Path, count: Optional[int], fov_tolerance: float = 1.0) -> dict:
+    """Refine from ``count`` images of the set (straight lines only: the board's edges count as
+    lines, its geometry is not used); errors against ost.yaml with the lens benchmark's metric
+    (RMS over a 33 x 19 grid after the best rotation), scaled to 1920 px wide."""
+    spec, authors = real_spec_and_truth(data)
+    paths = real_images(data, count)
+    images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in paths]
+    start = time.perf_counter()
+    result = refine_from_images(spec, images, fov_tolerance_deg=fov_tolerance)
+    seconds = time.perf_counter() - start
+    pixels = lp.pixel_grid(authors.width, authors.height)
+    rays = authors.unproject(pixels)
+    scale = lp.REFERENCE_WIDTH / authors.width
+    err = lambda c: (lp.best_rotation_rms(c, rays, pixels)[0] * scale) if c is not None else math.nan  # noqa: E731
+    return {'images': len(paths), 'zero_shot_px': err(result.zero_shot_camera), 'returned_px': err(result.camera),
+            'fitted_px': err(result.refined_camera), 'accepted': result.accepted, 'reason': result.reason,
+            'uncertainty_px': (result.uncertainty_px or math.nan) * scale,
+            'zero_shot_uncertainty_px': (result.zero_shot_uncertainty_px or math.nan) * scale,
+            'lines': result.lines_used, 'seconds_per_image': seconds / len(paths),
+            'pp_zero_shot_px': math.hypot(result.zero_shot_camera.cx - authors.cx,
+                                          result.zero_shot_camera.cy - authors.cy) * scale,
+            'pp_returned_px': math.hypot(result.camera.cx - authors.cx, result.camera.cy - authors.cy) * scale}
+
+
+def real_report(data: Path, counts, fov_tolerance: float, command: str, seconds: float, runs) -> str:
+    spec, _ = real_spec_and_truth(data)
+    lines = [f'## Line refinement on the shared real images ({data.name})', '',
+             f'`{command}` ({seconds:.0f} s).', '',
+             f'{data.name}: 24 real images {spec.width}x{spec.height} of a wide-angle lens (a checkerboard in '
+             'each: its '
+             'edges are used as straight lines like any other, its geometry is not used). No spec sheet: hfov '
+             f'{spec.hfov:.2f} / vfov {spec.vfov:.2f} derived from the authors\' ost.yaml read as Kannala-Brandt '
+             f'(as benchmarks/paper_table4.py does); FOV tolerance {fov_tolerance:g} degree(s). Errors against '
+             'ost.yaml: '
+             'RMS over a 33 x 19 grid after the best rotation, px scaled to 1920 wide (the lens benchmark\'s '
+             'metric). Images taken evenly through the set.', '',
+             '| images | zero-shot px | returned px | fitted px | accepted | uncertainty px (zero-shot / returned) '
+             '| principal point error px (zero-shot / returned) | lines | s per image | reason |',
+             '|---:|---:|---:|---:|---|---:|---:|---:|---:|---|']
+    for r in runs:
+        lines.append(f"| {r['images']} | {_f(r['zero_shot_px'])} | {_f(r['returned_px'])} | {_f(r['fitted_px'])} | "
+                     f"{'yes' if r['accepted'] else 'no'} | {_f(r['zero_shot_uncertainty_px'])} / "
+                     f"{_f(r['uncertainty_px'])} | {_f(r['pp_zero_shot_px'])} / {_f(r['pp_returned_px'])} | "
+                     f"{r['lines']} | {_f(r['seconds_per_image'])} | {r['reason']} |")
+    return '\n'.join(lines) + '\n'
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    parser.add_argument('--evidence', choices=('ideal', 'images'), default='ideal')
+    parser.add_argument('--evidence', choices=('ideal', 'images', 'real'), default='ideal',
+                        help='ideal curves, rendered images, or the shared real images (--real-data)')
+    parser.add_argument('--real-data', default=str(DEFAULT_REAL),
+                        help='real evidence: the ros_fisheye_800x503 directory')
+    parser.add_argument('--real-images', default='4,24',
+                        help='real evidence: comma-separated numbers of images to refine from (default %(default)s)')
     parser.add_argument('--profiles', type=int, default=80,
                         help='profiles, evenly through the file (default %(default)s)')
     parser.add_argument('--views', type=int, default=4)
@@ -389,6 +498,16 @@ def main(argv=None) -> int:
     parser.add_argument('--fov-tolerance', type=float, default=1.0)
     parser.add_argument('--scene', default='room', help='images evidence: room, corridor or street')
     parser.add_argument('--image-width', type=int, default=960, help='images evidence: width the profile is scaled to')
+    parser.add_argument('--render-cache', help='images evidence: directory where rendered views are kept (PNG, '
+                        'lossless) and read back on later runs; rendering is the same with or without it')
+    parser.add_argument('--tuning-set', action='store_true',
+                        help='take the profiles halfway between those of the default set (where constants '
+                             'are tuned; the default set is where they are reported)')
+    parser.add_argument('--dump', help='pickle every profile\'s result (and ideal curves) into this directory')
+    parser.add_argument('--shard', help='K/N: evaluate only every N-th profile from the K-th (with --dump, several '
+                        'processes share a run; --rows-from makes the report of all)')
+    parser.add_argument('--rows-from', help='comma-separated --dump directories: report their profiles\' rows '
+                        '(of the --profiles set) instead of evaluating')
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--csv', default=str(lp.DEFAULT_CSV))
     parser.add_argument('--out', help='write the markdown report here too')
@@ -400,12 +519,54 @@ def main(argv=None) -> int:
         return 2
     command = 'benchmarks/line_refinement.py ' + ' '.join(argv if argv is not None else sys.argv[1:])
     start = time.perf_counter()
-    chosen = evenly(wide_square_profiles(args.csv), args.profiles)
+    if args.evidence == 'real':
+        data = Path(args.real_data)
+        if not (data / 'ost.yaml').exists():
+            print(f'line_refinement: error: {data}/ost.yaml not found', file=sys.stderr)
+            return 2
+        counts = [int(c) for c in args.real_images.split(',') if c.strip()]
+        runs = []
+        for count in counts:
+            runs.append(real_run(data, count, args.fov_tolerance))
+            print(f"[{count} images] {runs[-1]}", file=sys.stderr, flush=True)
+        text = real_report(data, counts, args.fov_tolerance, command.strip(), time.perf_counter() - start, runs)
+        print(text, end='')
+        if args.out:
+            with open(args.out, 'a' if args.append else 'w') as f:
+                f.write(('\n' if args.append else '') + text)
+        return 0
+    chosen = evenly(wide_square_profiles(args.csv), args.profiles, 0.5 if args.tuning_set else 0.0)
+    shard, shards = (int(v) for v in args.shard.split('/')) if args.shard else (0, 1)
     rows = []
+    if args.rows_from:
+        import pickle
+        for directory in args.rows_from.split(','):
+            for name in sorted(os.listdir(directory)):
+                if name.endswith('.row.pkl'):
+                    with open(os.path.join(directory, name), 'rb') as f:
+                        rows.append(pickle.load(f))
+        order = {p.index: k for k, (p, _) in enumerate(chosen)}
+        rows = sorted((r for r in rows if r.index in order), key=lambda r: order[r.index])
+        seconds = sum(r.seconds_total for r in rows)
+        text = report(rows, args, seconds, command.strip(), table=not args.no_table)
+        print(text, end='')
+        if args.out:
+            with open(args.out, 'a' if args.append else 'w') as f:
+                f.write(('\n' if args.append else '') + text)
+        return 0
     for k, (p, fovs) in enumerate(chosen):
+        if k % shards != shard:
+            continue
+        t0 = time.perf_counter()
         rows.append(evaluate(p, fovs, args, args.seed * 100003 + p.index))
+        rows[-1].seconds_total = time.perf_counter() - t0
+        if args.dump:
+            import pickle
+            with open(os.path.join(args.dump, f'{p.index}.row.pkl'), 'wb') as f:
+                pickle.dump(rows[-1], f)
         r = rows[-1]
-        print(f'[{k + 1}/{len(chosen)}] {r.path}: zs {_f(r.zs_px)} -> {_f(r.out_px)} '
+        print(f'[{k + 1}/{len(chosen)}] {r.path}: zs {_f(r.zs_px)} -> {_f(r.out_px)} fit {_f(r.fit_px)} '
+              f'u {_f(r.zs_u)} -> {_f(r.out_u)} {_f(r.seconds_per_image)} s/img '
               f'({"accepted" if r.accepted else "refused"}) {r.failure or r.reason[:90]}', file=sys.stderr, flush=True)
     text = report(rows, args, time.perf_counter() - start, command.strip(), table=not args.no_table)
     print(text, end='')

@@ -5,25 +5,34 @@ For each frame size (640x480 ... 3840x2160) and encoding (bgr8, mono8), three pr
 machine: a publisher (best effort, as camera drivers publish) -> the system under test -> a
 subscriber, through the project's shared-memory Fast DDS profile:
 
-* node: the installed zeroshot_calib node (``ros2 run zeroshot_calib_ros node``), rectify:=true;
+* node: the installed zeroshot_calib node (``ros2 run zeroshot_calib_ros node``), rectify:=true,
+  on its serialized frame path (image_raw taken as CDR bytes, image_rect published as bytes);
+* baseline (``--baseline``, default ``message``): the previous node in the same run, i.e. the same
+  installed node forced onto its message path (ZEROSHOT_CALIB_FRAME_PATH=message: every frame
+  deserialised into a sensor_msgs/Image and serialised back, as before issue 14), or with
+  ``--baseline REF`` the package as committed at a git ref; ``--baseline none``: not measured;
 * relay: benchmarks/relay_node.py, the same process layout and QoS, republishing each frame
   unchanged (its raw mode: no deserialisation) -- the transport floor;
 * remap: ``cv2.remap`` alone on the node's maps, in this process -- the compute floor.
 
 Measured per case: latency (publisher stamp -> subscriber receive, wall clock) at 30 fps and the
 frames dropped there; the maximum sustained rate (highest offered rate with <= 1 % loss, found by
-bisection after a saturation run); the node's peak RSS. Targets (issue #6), evaluated at every
-size and reported for 1080p:
+bisection after a saturation run); the node's peak RSS. Targets (issues #6, #14), evaluated at
+every size and reported for 1080p:
 
     median latency(node)   <= median latency(relay) + remap + 1 ms
     max sustained rate(node) >= 0.9 / (1 / rate(relay) + remap)
+    max sustained rate(node) >= 1.15 x max sustained rate(baseline)   (1080p bgr8 and mono8)
+
+Start the full run on a quiet machine: the 1-min load average (``uptime``) at the start and
+before every case is in the results.
 
 Then, in this process, our exact fixed-point maps against OpenCV's fisheye route (what
 image_proc does: cv2.fisheye.initUndistortRectifyMap + remap) and cv2.fisheye.undistortImage per
 frame: speed and pixel differences; and start-up / map-rebuild / memory figures
 (benchmarks/startup_and_memory.py).
 
-    .venv/bin/python benchmarks/rectify_throughput.py            # full run (~15 min)
+    .venv/bin/python benchmarks/rectify_throughput.py            # full run, baseline: message path
     .venv/bin/python benchmarks/rectify_throughput.py --quick    # short run (~5 min)
     .venv/bin/python benchmarks/rectify_throughput.py --sizes 1920x1080 --encodings bgr8 --profile
 
@@ -37,6 +46,7 @@ import argparse
 import collections
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -53,6 +63,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_common as bc  # noqa: E402
+import startup_and_memory as sm  # noqa: E402
 
 sys.path.insert(0, str(bc.site_packages()))
 
@@ -268,12 +279,16 @@ def profile_target(session, seconds, out_path, rate):
     return out_path if out_path.exists() else None, out
 
 
+_FRAME_CALLBACKS = ('_on_image', '_on_serialized_image')
 PROFILE_CATEGORIES = [
     # (label, predicate on the ';'-joined main-thread stack), first match wins
     ('cv2.remap (Rectifier.rectify)', lambda st: 'Rectifier.rectify' in st),
-    ('publish image_rect (convert, serialise, write)', lambda st: '_publish_rectified' in st and 'publish (' in st),
-    ('publish CameraInfo', lambda st: '_on_image' in st and 'Publisher.publish' in st),
-    ('other Python in the frame callback', lambda st: '_on_image' in st),
+    # (_publish_rectified: the message path's; _publish_rectified_serialized: the serialized path's)
+    ('publish image_rect (convert, serialise, write)', lambda st: '_publish_rectified' in st and (
+        'publish (' in st or '_publish_serialized' in st)),
+    ('publish CameraInfo', lambda st: any(f in st for f in _FRAME_CALLBACKS) and (
+        'Publisher.publish' in st or '_publish_serialized' in st)),
+    ('other Python in the frame callback', lambda st: any(f in st for f in _FRAME_CALLBACKS)),
     ('take image_raw (deserialise into Python)', lambda st: '_take_subscription (' in st),
     ('executor waiting (idle)', lambda st: '_wait_for_ready_callbacks' in st and 'handler' not in st),
     ('other (timers, executor, parameters)', lambda st: True),
@@ -448,6 +463,59 @@ def throughput_table(results):
     return '\n'.join(lines)
 
 
+def speedup_lines(results):
+    """Max rate of the node against the baseline (the previous node) in the same run, per case."""
+    rows = [r for r in results if 'baseline' in r]
+    if not rows:
+        return []
+    lines = ['### The node against the previous node (baseline), same run', '',
+             '| frame | enc | baseline max fps | node max fps | node / baseline | baseline p50 ms | node p50 ms | '
+             'target >= 1.15x (1080p) |', '|---|---|---|---|---|---|---|---|']
+    for r in rows:
+        base, node = r['baseline'], r['node']
+        ratio = node['max_rate'] / base['max_rate'] if base['max_rate'] > 0 else float('nan')
+        target = ('yes' if ratio >= 1.15 else '**no**') if r['size'] == '1920x1080' else ''
+        r['speedup'] = ratio
+        lines.append(f"| {r['size']} | {r['encoding']} | {fmt(base['max_rate'])} | {fmt(node['max_rate'])} | "
+                     f"{fmt(ratio, 2)}x | {fmt(base['p30']['latency_ms'][50], 2)} | "
+                     f"{fmt(node['p30']['latency_ms'][50], 2)} | {target} |")
+    lines += ['', 'Max fps of each: highest offered rate with <= 1 % loss, median of the rounds; both measured '
+              'alternately with the relay, case by case, in this run.', '']
+    return lines
+
+
+def _run_settings(raw) -> tuple:
+    """(quiet-budget minutes, attempts) of a run: recorded, or read from its command line."""
+    command = ' '.join(raw.get('header', [''])[:1])
+    def option(name, default):
+        found = re.search(rf'--{name}[ =]([0-9.]+)', command)
+        return float(found.group(1)) if found else default
+    return (raw.get('quiet_budget_min', option('quiet-budget', 60.0)), int(raw.get('attempts', option('attempts', 3))))
+
+
+def load_lines(results, raw=None):
+    quiet_budget, attempts = _run_settings(raw or {})
+    runs = [run for r in results for runs in r.get('rounds', {}).values() for run in runs]
+    if not runs:
+        return []
+    loads = [float(run['load_at_start']) for run in runs if run.get('load_at_start') is not None]
+    others = [run['others_cores'] for run in runs if 'others_cores' in run]
+    repeated = sum(run.get('attempt', 1) - 1 for run in runs)
+    lines = [f'Machine load: 1-min load average at the start of each measured run (after its warm-up; it '
+             f'includes the benchmark\'s own three processes): min {min(loads):.2f}, median '
+             f'{float(np.median(loads)):.2f}, max {max(loads):.2f}.']
+    if others:
+        waits = (f' Each run waited (at most {quiet_budget:g} min over the whole run) until processes outside the '
+                 f'benchmark used < {sm.QUIET_CPU:g} cores' if quiet_budget > 0 else
+                 ' Runs did not wait for a quiet machine (--quiet-budget 0)')
+        again = (f', and was measured again (at most {attempts} times) if they used > {sm.DISTURBED_CPU:g} cores '
+                 f'during it: {repeated} run(s) repeated' if attempts > 1 else
+                 ', and each was measured once whatever other processes did (--attempts 1)')
+        lines[0] += (f'{waits}{again}; CPU of other processes (other helpers\' jobs) during the kept runs: median '
+                     f'{float(np.median(others)):.2f}, max {max(others):.2f} cores of 2.')
+    return lines + ['']
+
+
 def comparison_table(comparisons):
     lines = ['| frame | enc | build ours ms | build cv maps ms | frame ours ms | frame cv maps ms | '
              'undistortImage ms/frame | map diff px max / p99 | ours vs cv maps: max / mean / >1 level | '
@@ -464,7 +532,7 @@ def comparison_table(comparisons):
     return '\n'.join(lines)
 
 
-def run_throughput(sizes, encodings, cfg, log_dir, profile_dir=None, baseline_dir=None, rounds=1):
+def run_throughput(sizes, encodings, cfg, log_dir, profile_dir=None, baseline_dir=None, rounds=1, attempts=3):
     """relay and node (and the baseline node) alternately, ``rounds`` times each; the round with
     the median max rate is kept (a busy shared machine makes single runs noisy)."""
     results = []
@@ -477,7 +545,7 @@ def run_throughput(sizes, encodings, cfg, log_dir, profile_dir=None, baseline_di
             for round_ in range(rounds):
                 for system in systems:
                     run = run_system(system, w, h, enc, cfg, log_dir,
-                                     profile_dir if round_ == 0 else None, baseline_dir)
+                                     profile_dir if round_ == 0 else None, baseline_dir, attempts=attempts)
                     entry['rounds'].setdefault(system, []).append(run)
             for system, runs in entry['rounds'].items():
                 entry[system] = combine_rounds(runs)
@@ -498,15 +566,35 @@ def combine_rounds(runs):
             'non_finite_camera_info': sum(r.get('non_finite_camera_info', 0) for r in runs)}
 
 
-def run_system(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir):
+def run_system(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir, attempts=3):
+    """One system's run of a case on a quiet machine: started once other processes use less than
+    sm.QUIET_CPU cores, repeated (at most ``attempts`` times) if they used more than
+    sm.DISTURBED_CPU cores during it. The baseline is the message path of the installed node
+    (``baseline_dir == 'message'``) or the package exported from a git ref (a directory)."""
+    for attempt in range(1, attempts + 1):
+        quiet = sm.wait_quiet(what=f'{system} {w}x{h} {enc}')
+        result = _run_system_once(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir)
+        result.update(quiet, attempt=attempt)
+        if result['others_cores'] <= sm.DISTURBED_CPU or attempt == attempts:
+            break
+        print(f'#   other processes used {result["others_cores"]:.2f} cores during it: measured again',
+              file=sys.stderr, flush=True)
+    return result
+
+
+def _run_system_once(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir):
     size = f'{w}x{h}'
-    print(f'# {system} {size} {enc}', file=sys.stderr, flush=True)
-    s = Session('node' if system == 'baseline' else system, w, h, enc, log_dir,
-                package_dir=baseline_dir if system == 'baseline' else None)
+    print(f'# {system} {size} {enc}  (load {open("/proc/loadavg").read().split()[0]})', file=sys.stderr, flush=True)
+    baseline = system == 'baseline'
+    message_path = baseline and str(baseline_dir) == 'message'
+    s = Session('node' if baseline else system, w, h, enc, log_dir,
+                package_dir=baseline_dir if baseline and not message_path else None,
+                target_env={'ZEROSHOT_CALIB_FRAME_PATH': 'message'} if message_path else None)
     result = {}
     try:
         s.warm_up()
         load = open('/proc/loadavg').read().split()[0]
+        others = sm.OtherCpu()
         p30 = s.phase('30 fps', 30, cfg['p30_seconds'])
         sat = s.phase('saturation', 0, cfg['sat_seconds'])
         rate, trials = max_sustained_rate(s, sat.output_rate, cfg['bisect_steps'], cfg['trial_seconds'])
@@ -517,13 +605,14 @@ def run_system(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir):
             prof = str(got) if got else None
         result = {'p30': p30.summary(), 'saturation': sat.summary(), 'max_rate': rate,
                   'trials': trials, 'peak_rss_mib': s.peak_rss(), 'rss_samples': s.rss[::4],
-                  'profile': prof, 'alive': s.target.alive(), 'load_at_start': load}
+                  'profile': prof, 'alive': s.target.alive(), 'load_at_start': load,
+                  'others_cores': others.cores()}
         if system != 'relay':
             result['non_finite_camera_info'] = sum(1 for v in s.infos.values() if not v[1])
     finally:
         s.close()
     print(f'#   p50 {result["p30"]["latency_ms"][50]:.2f} ms, lost@30 {result["p30"]["lost"]}, '
-          f'max {result["max_rate"]:.1f} fps', file=sys.stderr, flush=True)
+          f'max {result["max_rate"]:.1f} fps, others {result["others_cores"]:.2f} cores', file=sys.stderr, flush=True)
     return result
 
 
@@ -534,10 +623,18 @@ def main(argv=None):
     p.add_argument('--encodings', default='bgr8,mono8')
     p.add_argument('--skip', default='', help='comma list of: throughput, compare, startup')
     p.add_argument('--profile', action='store_true', help='also py-spy the node (needs py-spy in .venv)')
-    p.add_argument('--baseline', default=None, help='git ref whose committed node is measured too '
-                   '(exported read-only with git archive), e.g. HEAD')
+    p.add_argument('--baseline', default='message', help='the previous node, measured beside the node in '
+                   'the same run: "message" (default: the installed node on its message path, '
+                   'ZEROSHOT_CALIB_FRAME_PATH=message), a git ref (its committed package, exported '
+                   'read-only with git archive, e.g. HEAD) or "none"')
+    p.add_argument('--startup-baseline', default='HEAD', help='git ref whose committed node the start-up '
+                   'figures (and the import time of the node module) are compared with; "none": not measured')
     p.add_argument('--rounds', type=int, default=None, help='relay/node alternations per case '
                    '(default 2, --quick 1)')
+    p.add_argument('--quiet-budget', type=float, default=60.0, help='minutes that all waits for a quiet machine '
+                   '(other processes below 0.3 cores) may take together (default 60; 0: never wait)')
+    p.add_argument('--attempts', type=int, default=3, help='measurements of a run at most, while other processes '
+                   'used more than 0.6 cores during it (default 3; 1: as the machine is, the load recorded)')
     p.add_argument('--out', default=str(bc.RESULTS / 'rectify_throughput.md'))
     p.add_argument('--render', default=None, metavar='JSON', help='only re-render the report of a previous run')
     args = p.parse_args(argv)
@@ -546,6 +643,7 @@ def main(argv=None):
     bc.install_signal_handlers()
     if not bc.NODE_EXECUTABLE.exists():
         sys.exit(f'{bc.NODE_EXECUTABLE} is missing: run `make build` first')
+    sm.WAIT_BUDGET_S[0] = args.quiet_budget * 60
     sizes = [s for s in args.sizes.split(',') if s]
     encodings = [e for e in args.encodings.split(',') if e]
     cfg = ({'p30_seconds': 4, 'sat_seconds': 1.5, 'trial_seconds': 2, 'bisect_steps': 2, 'remap_repeat': 15,
@@ -559,12 +657,20 @@ def main(argv=None):
     print(f'logs of the child processes: {log_dir}', file=sys.stderr)
     started = time.time()
     raw = {'config': cfg, 'quick': args.quick, 'rounds': args.rounds or (1 if args.quick else 2),
+           'attempts': args.attempts, 'quiet_budget_min': args.quiet_budget,
            'header': [f'Command: `.venv/bin/python benchmarks/rectify_throughput.py {" ".join(argv or sys.argv[1:])}`',
-                      f'Date: {time.strftime("%Y-%m-%d %H:%M:%S %Z")}; {bc.versions()}', '',
+                      f'Date: {time.strftime("%Y-%m-%d %H:%M:%S %Z")}; {bc.versions()}',
+                      f'`uptime` before the run: ' + subprocess.run(['uptime'], capture_output=True,
+                                                                    text=True).stdout.strip(), '',
                       '```', bc.machine_description(), '```', '']}
     baseline_dir = None
-    if args.baseline:
-        import startup_and_memory as sm
+    if args.baseline == 'message':
+        baseline_dir = 'message'
+        raw['header'] += ['Baseline: the previous node, i.e. the same installed node on its message path '
+                          '(`ZEROSHOT_CALIB_FRAME_PATH=message`: each frame deserialised into a sensor_msgs/Image, '
+                          'rectified, serialised back), measured in the same run, case by case; the "node" '
+                          'takes image_raw as CDR bytes and publishes bytes.', '']
+    elif args.baseline and args.baseline != 'none':
         baseline_dir = sm.export_ref(args.baseline)
         sha = subprocess.run(['git', '-C', str(bc.REPO), 'rev-parse', '--short', args.baseline],
                              capture_output=True, text=True).stdout.strip()
@@ -572,7 +678,7 @@ def main(argv=None):
                           'archive; the "node" is the working tree as built into install/.', '']
     if 'throughput' not in skip:
         raw['throughput'] = run_throughput(sizes, encodings, cfg, log_dir, log_dir if args.profile else None,
-                                           baseline_dir, raw['rounds'])
+                                           baseline_dir, raw['rounds'], attempts=args.attempts)
     if 'compare' not in skip:
         comparisons = []
         for size in sizes:
@@ -582,9 +688,9 @@ def main(argv=None):
             comparisons.append({'size': size, 'encoding': 'bgr8', **c})
         raw['compare'] = comparisons
     if 'startup' not in skip:
-        import startup_and_memory as sm
         raw['startup'] = sm.run_all(sizes=[s for s in sizes if s in ('1920x1080', '3840x2160')] or ['1920x1080'],
-                                    quick=args.quick, log_dir=log_dir, baseline=args.baseline)
+                                    quick=args.quick, log_dir=log_dir,
+                                    baseline=None if args.startup_baseline == 'none' else args.startup_baseline)
     raw['minutes'] = (time.time() - started) / 60
     out.with_suffix('.json').write_text(json.dumps(raw, indent=1, default=str))
     return render(out.with_suffix('.json'), out)
@@ -614,6 +720,8 @@ def render(json_path: Path, out: Path):
                    '`benchmarks/relay_node.py --mode raw` (same QoS and process layout, republishes the '
                    'serialised frame unchanged). Three processes share 2 cores, so the publisher and '
                    'subscriber take CPU from the system under test; ratios are from one run.', '']
+        report += speedup_lines(results)
+        report += load_lines(results, raw)
         report += profile_report(results)
     if 'compare' in raw:
         report += ['## Exact maps vs OpenCV fisheye (image_proc) vs undistortImage per frame', '',
@@ -625,7 +733,6 @@ def render(json_path: Path, out: Path):
                    'Map diff: distance between the two maps\' source positions where both see the '
                    'image. Pixel differences: 8-bit levels over the whole bgr8 test frame.', '']
     if 'startup' in raw:
-        import startup_and_memory as sm
         report += sm.report_lines(raw['startup'])
     if 'minutes' in raw:
         report += [f'Total benchmark time: {raw["minutes"]:.1f} min.', '']

@@ -133,3 +133,65 @@ def test_kannala_brandt_beyond_the_turning_point_is_nan():
     assert np.all(np.isnan(cam.unproject(np.array([[400 + beyond, 300.0]]))))
     inside = cam.project(np.array([[np.sin(0.9), 0.0, np.cos(0.9)]]))
     assert cam.unproject(inside)[0] == pytest.approx([np.sin(0.9), 0.0, np.cos(0.9)], abs=1e-12)
+
+
+def _linprog_minimax(A, b):
+    """The Chebyshev fit as scipy's HiGHS linear programme: the independent reference."""
+    from scipy.optimize import linprog
+    n, m = A.shape
+    ones = np.ones((n, 1))
+    result = linprog(np.r_[np.zeros(m), 1.0], A_ub=np.block([[A, -ones], [-A, -ones]]), b_ub=np.r_[b, -b],
+                     bounds=[(None, None)] * (m + 1), method='highs')
+    assert result.status == 0
+    return result.x[:m]
+
+
+def test_distortion_fits_are_the_linear_programmes_minimax_without_scipy():
+    """The KB4 and plumb_bob fits reach the maximum error of the linear programme (scipy HiGHS)
+    on 120 random specs, by the numpy-only exchange (no fallback taken)."""
+    from zeroshot_calib_ros.core.lens import fitting
+    rng = np.random.default_rng(7)
+    checked = 0
+    for _ in range(120):
+        width = int(rng.integers(320, 4000))
+        height = int(width * rng.uniform(0.5, 1.0))
+        hfov = rng.uniform(60, 200)
+        vfov = hfov * height / width * rng.uniform(0.85, 1.1)
+        try:
+            camera = solve_zero_shot(CameraSpec(width=width, height=height, hfov=hfov, vfov=vfov), 'auto').camera
+        except ValueError:
+            continue
+        theta = np.linspace(0.0, camera.max_field_angle(), fitting.FIT_SAMPLES)
+        target = camera.theta_d(theta)
+        if not np.all(np.isfinite(target)):
+            continue
+        systems = [(np.stack([theta ** 3, theta ** 5, theta ** 7, theta ** 9], axis=1), target - theta)]
+        if theta[-1] < 1.3:
+            r = np.tan(theta)
+            systems.append((np.stack([r ** 3, r ** 5, r ** 7], axis=1), target - r))
+        for A, b in systems:
+            x = fitting._remez(A, b)
+            assert x is not None
+            ours = np.max(np.abs(A @ x - b))
+            reference = np.max(np.abs(A @ _linprog_minimax(A, b) - b))
+            assert ours <= reference * (1 + 1e-9)
+            checked += 1
+    assert checked >= 100
+
+
+def test_solving_and_fitting_a_camera_imports_no_scipy_optimize():
+    """What the node needs for its first CameraInfo (solve, KB4 fit, CameraInfo data) does not
+    import scipy.optimize (half a second of start-up, issue 14)."""
+    import subprocess
+    import sys
+    code = ('import sys\n'
+            'from zeroshot_calib_ros.core.zeroshot.solver import solve_zero_shot\n'
+            'from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec\n'
+            'from zeroshot_calib_ros.core.lens.fitting import DISTORTION_FITS\n'
+            'from zeroshot_calib_ros.core.ros_data import calibration_file, node_parameters\n'
+            'camera = solve_zero_shot(CameraSpec(width=1920, height=1080, hfov=118, vfov=69), "auto").camera\n'
+            'for fit in DISTORTION_FITS.values():\n'
+            '    fit(camera)\n'
+            'print(sorted(m for m in sys.modules if m.startswith("scipy.optimize")))\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == '[]'

@@ -17,11 +17,11 @@ from zeroshot_calib_ros.core.estimation.parameters import KannalaBrandtLayout
 from zeroshot_calib_ros.core.estimation.problem import Problem, robust_factor
 from zeroshot_calib_ros.core.estimation.refine import refine_camera, refine_from_images, zero_shot_camera
 from zeroshot_calib_ros.core.estimation.terms import FovTerm, PrincipalPointPrior
-from zeroshot_calib_ros.core.estimation.uncertainty import (covariance, pixel_grid, pixel_rms,
-                                                            zero_shot_uncertainty)
+from zeroshot_calib_ros.core.estimation.uncertainty import (covariance, pixel_grid, pixel_rms, systematic_covariance,
+                                                            zero_shot_uncertainty, zoom_field)
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera, PinholeCamera
 from zeroshot_calib_ros.core.lens.wide_fov import fields_of_view_through_axis
-from zeroshot_calib_ros.core.lines.straightness import StraightnessTerm
+from zeroshot_calib_ros.core.lines.straightness import StraightnessTerm, smallest_eigenvectors
 from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
 
 W, H = 1280, 800
@@ -318,3 +318,102 @@ def test_images_without_lines_keep_zero_shot():
     result = refine_from_images(spec_of(TRUTH), [black, black])
     assert not result.accepted and result.reason.startswith('too few lines')
     assert np.allclose(result.camera.K, zero_shot_camera(spec_of(TRUTH), W, H).K)
+
+
+def test_lines_that_agree_with_zero_shot_keep_it_with_its_error_bar():
+    """A few noisy lines (2 px) imaged through the zero-shot camera itself: the fit wanders
+    within its spread and cannot tell zero-shot is worse, so zero-shot is kept, and the error
+    bar reported is the zero-shot camera's own (the FOV tolerance's), not the fit's."""
+    spec = spec_of(TRUTH)
+    zs = zero_shot_camera(spec, W, H)
+    curves = views(zs, np.random.default_rng(0), 4, noise=2.0, arcs_per_view=0)
+    result = refine_camera(spec, curves)
+    assert not result.accepted and result.reason.startswith('the lines agree with zero-shot'), result.reason
+    assert np.allclose(result.camera.K, zs.K) and np.allclose(result.camera.D, zs.D)
+    assert result.uncertainty_px == pytest.approx(zero_shot_uncertainty(spec).rms_px)
+
+
+def test_smallest_eigenvectors_match_numpy():
+    """The adjugate iteration against numpy's eigh, on scatters of rays near a plane (long and
+    short arcs, noise up to longer than the arc) and on degenerate ones (one ray, no ray)."""
+    rng = np.random.default_rng(3)
+    scatters = []
+    for k in range(300):
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        e1 = np.cross(n, [0.0, 0.0, 1.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        t = rng.uniform(-1, 1, 12) * rng.choice([1e-4, 0.01, 1.0])
+        noise = rng.normal(0, rng.choice([0.0, 1e-5, 1e-3]), (12, 1))
+        rays = np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2 + noise * n
+        scatters.append(rays.T @ rays)
+    scatters += [np.outer([0.0, 0.6, 0.8], [0.0, 0.6, 0.8]), np.zeros((3, 3))]
+    S = np.array(scatters)
+    v = smallest_eigenvectors(S)
+    w, V = np.linalg.eigh(S)
+    assert np.allclose(np.linalg.norm(v, axis=1), 1.0)
+    # the eigenvector where the smallest eigenvalue is simple; an eigenvector of it in any case
+    simple = w[:, 1] - w[:, 0] > 1e-9 * np.maximum(w[:, 2], 1e-300)
+    assert np.all(np.abs(np.sum(v[simple] * V[simple, :, 0], axis=1)) > 1 - 1e-12)
+    residual = np.einsum('cij,cj->ci', S, v) - w[:, :1] * v
+    assert np.all(np.linalg.norm(residual, axis=1) <= 1e-9 * np.maximum(w[:, 2], 1e-12))
+
+
+def test_zoom_field_of_a_pinhole_is_the_offset_from_the_principal_point():
+    """r -> (s x, s y, z) through a pinhole moves pixel u by d u / d s = u - c (closed form)."""
+    camera = PinholeCamera(500.0, 500.0, 330.0, 250.0, 640, 480)
+    pixels = pixel_grid(640, 480)
+    field = zoom_field(camera, camera.unproject(pixels)).reshape(-1, 2)
+    assert np.allclose(field, pixels - [330.0, 250.0], atol=1e-3)
+
+
+def test_systematic_floor_only_widens_the_covariance(refined):
+    """A floor of 0 is the Laplace covariance; a floor > 0 is at least as wide in every
+    direction, and much wider where the lines speak only through small curvatures."""
+    from zeroshot_calib_ros.core.estimation.fit import fit_lines
+    from zeroshot_calib_ros.core.estimation.terms import ShapePrior
+    curves, _ = refined
+    spec = spec_of(TRUTH)
+    zs = zero_shot_camera(spec, W, H)
+    term = StraightnessTerm([c.points for c in curves if c.straight], sigma=0.3)
+    priors = [FovTerm.from_spec(spec), PrincipalPointPrior(W, H), ShapePrior(zs, zs.max_field_angle(), 0.02)]
+    fit = fit_lines(term, priors, zs)
+    J = fit.problem.jacobian(fit.solution.x)
+    laplace, _ = covariance(J)
+    zero, _ = systematic_covariance(fit.problem, fit.solution.x, J, 0.0)
+    assert np.allclose(zero, laplace, rtol=1e-6, atol=0)
+    wide, _ = systematic_covariance(fit.problem, fit.solution.x, J, 0.3)
+    scale = np.sqrt(np.diag(laplace))
+    difference = (wide - laplace) / np.outer(scale, scale)
+    assert np.linalg.eigvalsh(0.5 * (difference + difference.T)).min() > -1e-9
+    assert np.trace(difference) > 0.5
+
+
+def test_rezoom_finds_the_zoom_the_fovs_ask_for():
+    """FOVs of the true camera composed with the zoom r -> (s x, s y, z), s = 1.006, computed
+    from its own rays (the angle between the zoomed rays of the edge pixels): ``rezoom`` of the
+    true camera meets them, and projects every ray as the zoomed camera does."""
+    from zeroshot_calib_ros.core.estimation.refine import rezoom
+    s = 1.006
+
+    def zoomed_ray(pixel):
+        r = TRUTH.unproject(np.array([pixel], float))[0] * [1 / s, 1 / s, 1.0]
+        return r / np.linalg.norm(r)
+
+    def angle(a, b):  # through the optical axis when the two rays' off-axis angles exceed 180 degrees
+        ra, rb = zoomed_ray(a), zoomed_ray(b)
+        between = math.degrees(math.acos(np.clip(ra @ rb, -1, 1)))
+        off = sum(math.degrees(math.atan2(math.hypot(r[0], r[1]), r[2])) for r in (ra, rb))
+        return 360.0 - between if off > 180.0 else between
+
+    cx, cy = TRUTH.cx, TRUTH.cy
+    fovs = {'hfov': angle((0, cy), (W, cy)), 'vfov': angle((cx, 0), (cx, H)), 'dfov': angle((0, 0), (W, H))}
+    term = FovTerm(fovs, W, H, 1.0)
+    assert np.abs(term.residuals(TRUTH)).max() > 0.3  # the unzoomed camera misses them
+    out = rezoom(TRUTH, term)
+    assert np.abs(term.residuals(out)).max() < 0.02
+    rays = TRUTH.unproject(pixel_grid(W, H))
+    rays = rays[np.all(np.isfinite(rays), axis=1)] * [1 / s, 1 / s, 1.0]
+    expected = TRUTH.project(rays * [s, s, 1.0])
+    assert np.max(np.linalg.norm(out.project(rays) - expected, axis=1)) < 0.05

@@ -74,7 +74,7 @@ def test_parameters_table_is_what_the_node_declares(peer, start_node):
     exit 0". The node is started from the preset alone, so every other parameter keeps its default
     (the preset's default is checked in --help)."""
     table = readme_parameters()
-    assert len(table) == 19
+    assert len(table) == 21
     start_node('--ros-args', '-p', 'preset:=gopro_hero9_wide')
     infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
     peer.spin_until(lambda: infos, what='camera_info')

@@ -566,7 +566,8 @@ def _cmd_refine(args):
     (width, height), = sizes
     spec = _refine_spec(args, width, height)
     solution = solve_zero_shot(spec, 'auto')
-    result = refine_from_images(spec, images, args.fov_tolerance)
+    # the images are detected in parallel threads (the same curves, in the same order)
+    result = refine_from_images(spec, images, args.fov_tolerance, workers=os.cpu_count() or 1)
     summary, calibration = _refined_summary(result, spec, solution, args)
     warnings = [] if result.accepted else _fit_warnings(solution, calibration, DISTORTION_FITS['equidistant'](solution.camera))
     summary['uncertainty_px'] = result.uncertainty_px if result.accepted else result.zero_shot_uncertainty_px

@@ -11,6 +11,15 @@ parameter change, set_camera_info) are built on a builder thread while frames ke
 calibration in force; when they are ready, a guard condition swaps the new calibration in on the
 executor thread. So a parameter change never stalls the stream, and every frame's CameraInfo and
 image_rect come from one calibration.
+
+Frames (issue 14) are taken as the serialized bytes DDS delivered (``raw=True``): the Image header
+is parsed in place (``core/ros_data/cdr_image.py``), the pixels are viewed without a copy, remapped
+into a reused buffer laid out as the serialized image_rect, and published as bytes, as is a
+serialized CameraInfo whose stamp is patched. Frames that reader does not decode exactly as the
+ROS deserializer would (another CDR encapsulation, unusual strings) are deserialized and take the
+message path, counted (``frames_via_message_path``). The whole node takes the message path when
+ZEROSHOT_CALIB_FRAME_PATH=message (the previous node, for comparisons) or on a big-endian host;
+the start-up log and /diagnostics (``frame_path``) say which path is in use and why.
 """
 from __future__ import annotations
 
@@ -45,6 +54,8 @@ from sensor_msgs.srv import SetCameraInfo  # noqa: E402
 from ..core.lens.fitting import FIT_WARNING_PX  # noqa: E402
 from ..core.ros_data.calibration_file import (CalibrationFileError, CameraCalibration,  # noqa: E402
                                               resolve_camera_info_url, summary_text)
+from ..core.ros_data.cdr_image import (CdrError, NotPlainCdr, SerializedImage, parse_image,  # noqa: E402
+                                       patch_stamp, pixel_bytes)
 from ..core.ros_data.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded,  # noqa: E402
                                           binned_roi_size, binning_or_roi_reason, check_frame,
                                           check_map_budget, default_map_budget_mb, image_array, map_bytes)
@@ -52,9 +63,10 @@ from ..core.ros_data.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob 
 from ..core.ros_data.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
                                              RECTIFICATION_PARAMETERS, Settings, number_in_range,
                                              solve_from_settings, usage_text)
+from ..core.ros_data.online_refinement import OnlineRefiner, refined_calibration  # noqa: E402
 from ..core.zeroshot.solver import NoConvergence  # noqa: E402
 from ..core.zeroshot.spec import SpecError  # noqa: E402
-from .messages import calibration_from_camera_info, fill_camera_info  # noqa: E402
+from .messages import calibration_from_camera_info, fill_camera_info, serialized_camera_info  # noqa: E402
 from .parameter_service import AtomicParameterService, descriptor  # noqa: E402
 
 NODE_NAME = 'zeroshot_calib'
@@ -63,6 +75,33 @@ IMAGE_IDLE_SECONDS = 1.0
 WARN_THROTTLE_SECONDS = 5.0
 OTHER_SIZE_IDLE_SECONDS = 10.0
 """Maps of a frame size other than the configured one are released after this long unused."""
+FRAME_PATH_ENV = 'ZEROSHOT_CALIB_FRAME_PATH'
+"""'serialized' (the default) or 'message': how frames are taken and published (see the module)."""
+_INFO_TEMPLATES_CACHED = 16
+REFINE_PARAMETERS = ('refine', 'refine_interval')
+REFINABLE_SOURCES = ('spec', 'refined')
+"""Sources of a calibration that ``refine`` refines (never a file's or set_camera_info's)."""
+
+
+def frame_path_choice(environ=os.environ) -> tuple:
+    """(serialized: bool, why) of the frame path the environment and this host allow."""
+    wanted = environ.get(FRAME_PATH_ENV, 'serialized').strip().lower() or 'serialized'
+    if wanted == 'message':
+        return False, f'{FRAME_PATH_ENV}=message'
+    if sys.byteorder != 'little':
+        return False, 'big-endian host (the serialized path writes little-endian pixels and CDR)'
+    if wanted != 'serialized':
+        return True, f'{FRAME_PATH_ENV}={wanted!r} is neither serialized nor message: serialized'
+    return True, ''
+
+
+def _publish_serialized(publisher, buffer):
+    """Publish a serialized message (``bytes`` or ``bytearray``) without another copy:
+    rclpy's Publisher.publish takes ``bytes`` only, its handle's publish_raw a bytearray too
+    (copied into the middleware before it returns, so the buffer can be reused)."""
+    handle = publisher.handle
+    with handle:
+        handle.publish_raw(buffer)
 
 
 class ZeroShotCalibNode(Node):
@@ -70,7 +109,11 @@ class ZeroShotCalibNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, start_parameter_services=False, **kwargs)
-        self._parameter_service = AtomicParameterService(self)
+        # Start-up (issue 14): what the first CameraInfo needs, then that CameraInfo, then the
+        # map build, then the rest (services, the image endpoints, timers, the log: rclpy's
+        # first log lines cost tens of ms each, so information lines wait until the CameraInfo
+        # is out; warnings and errors do not, see _log).
+        self._startup_log = []
         for name, parameter in PARAMETERS.items():
             self.declare_parameter(name, parameter.default, descriptor(parameter))
         self._stats = Counter()
@@ -84,6 +127,9 @@ class ZeroShotCalibNode(Node):
         self._out_buffer = None
         self._rect_msg = Image()
         self._info_cache = (None, None)  # (calibration, its CameraInfo), reused frame after frame
+        self._serialized, self._frame_path_reason = frame_path_choice()
+        self._rect_serialized = SerializedImage()  # image_rect, reused frame after frame
+        self._info_templates = {}  # (id(calibration), frame_id) -> (calibration, serialized CameraInfo)
         self._maps_build_ms = float('nan')
         self._reverting = False
 
@@ -91,20 +137,36 @@ class ZeroShotCalibNode(Node):
                                    0, 2**40, integer=True) or default_map_budget_mb()
         settings = Settings.from_values(self._values())
         self._settings = settings
+        self._refine, self._refine_interval = self._refine_values(self._values())
+        self._refiner: Optional[OnlineRefiner] = None
+        self._refine_off = 'refine is false'  # why no refiner runs (diagnostics)
         url = self.get_parameter('camera_info_url').value
         self._url_path = resolve_camera_info_url(url, settings.camera_name)
         # The calibration is in force at once (CameraInfo needs no maps); its maps are built on
         # the builder thread, and frames that come before they are ready are not rectified.
-        self._active = self._initial_calibration(settings)
+        try:
+            self._active = self._initial_calibration(settings)
+        except Exception:
+            self._flush_startup_log()  # what was said before the failure
+            raise
         self._values_in_force = self._values()
         self._newest = self._active  # the last calibration accepted (in force or being built)
         self._generation = self._active.generation
+        self._create_info_publisher()
+        # One at start-up whatever the camera does: transient local then holds a calibration for
+        # late joiners even if a camera exists but has not sent a frame yet.
+        self._publish_own_info()
+        # The maps next (a low-priority thread): frames that come before they are built are
+        # not rectified, so they get the rest of the start-up as a head start.
         self._built = []
         self._built_lock = threading.Lock()
         self._built_guard = self.create_guard_condition(self._on_calibration_built)
         self._builder = MapBuilder(self._on_builder_done)
+        if self._active.rectify_enabled:
+            self._builder.submit(MapJob(self._active, map_threads=None))
 
-        self._create_endpoints()
+        self._parameter_service = AtomicParameterService(self)
+        self._create_image_endpoints()
         self._set_camera_info_srv = self.create_service(SetCameraInfo, 'set_camera_info',
                                                         self._on_set_camera_info)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -112,12 +174,31 @@ class ZeroShotCalibNode(Node):
         self._info_timer = self.create_timer(1.0 / self._rate, self._on_info_timer)
         self._housekeeping_timer = self.create_timer(1.0, self._on_housekeeping)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        # One at start-up whatever the camera does: transient local then holds a calibration for
-        # late joiners even if a camera exists but has not sent a frame yet.
-        self._publish_own_info()
+        self._flush_startup_log()
         self.get_logger().info(self._interfaces_text())
-        if self._active.rectify_enabled:  # after the first CameraInfo is out
-            self._builder.submit(MapJob(self._active, map_threads=None))
+        self._follow_with_refiner(self._active)
+
+    def _flush_startup_log(self):
+        startup_log, self._startup_log = self._startup_log, None
+        for level, text in startup_log or ():
+            self._log(level, text)
+
+    def _log(self, level: str, text: str):
+        """Log now, or after the first CameraInfo while the node starts: only information waits;
+        a warning or an error is logged at once, with what waited before it (in order), so it
+        is in the log before the CameraInfo it concerns goes out. One call site per level:
+        rclpy refuses another severity from a call site that logged once."""
+        if self._startup_log is not None:
+            self._startup_log.append((level, text))
+            if level == 'info':
+                return
+            self._flush_startup_log()
+        elif level == 'error':
+            self.get_logger().error(text)
+        elif level == 'warning':
+            self.get_logger().warning(text)
+        else:
+            self.get_logger().info(text)
 
     @property
     def _map_budget_bytes(self) -> int:
@@ -140,38 +221,38 @@ class ZeroShotCalibNode(Node):
                                            settings.rectify, settings.interpolation, build_maps=False,
                                            map_budget_bytes=self._map_budget_bytes)
             except (CalibrationFileError, ValueError) as exc:
-                self.get_logger().error(f'ignoring camera_info_url {path}: {exc}; solving from the spec '
-                                        'instead (set_camera_info will overwrite the file)')
+                self._log('error', f'ignoring camera_info_url {path}: {exc}; solving from the spec '
+                          'instead (set_camera_info will overwrite the file)')
                 self._file_state = f'{path} unreadable ({exc}): set_camera_info will overwrite it'
             else:
                 for warning in getattr(calibration, 'load_warnings', ()):
-                    self.get_logger().warning(f'{path}: {warning}')
+                    self._log('warning', f'{path}: {warning}')
                 self._warn_if_file_differs(calibration, settings, path)
-                self.get_logger().info(
-                    f'calibration loaded from {path} (takes precedence over the spec):\n'
+                self._log(
+                    'info', f'calibration loaded from {path} (takes precedence over the spec):\n'
                     f'  {calibration.width} x {calibration.height} px, camera_name {calibration.camera_name}\n'
                     f'  K {calibration.K.tolist()}\n  {calibration.distortion_model} D {calibration.D.tolist()}')
                 self._file_state = f'loaded {path}; set_camera_info saves there'
                 return active
         active, summary = solve_from_settings(settings, 0, build_maps=False, map_budget_bytes=self._map_budget_bytes)
-        self.get_logger().info('zero-shot calibration from the spec sheet:\n' + summary_text(summary))
+        self._log('info', 'zero-shot calibration from the spec sheet:\n' + summary_text(summary))
         self._warn_fit(summary)
         return active
 
     def _warn_if_file_differs(self, calibration: CameraCalibration, settings: Settings, path: str):
         spec = settings.spec
         if calibration.camera_name != settings.camera_name:
-            self.get_logger().warning(f'{path} is the calibration of camera_name {calibration.camera_name!r}, '
-                                      f'this node is camera_name {settings.camera_name!r}; using the file')
+            self._log('warning', f'{path} is the calibration of camera_name {calibration.camera_name!r}, '
+                      f'this node is camera_name {settings.camera_name!r}; using the file')
         if (calibration.width, calibration.height) != (spec.width, spec.height):
-            self.get_logger().warning(f'{path} is for {calibration.width}x{calibration.height} images, the spec '
-                                      f'says {spec.width}x{spec.height}; using the file (frames of the spec '
-                                      'size get scaled intrinsics if the aspect ratio agrees)')
+            self._log('warning', f'{path} is for {calibration.width}x{calibration.height} images, the spec '
+                      f'says {spec.width}x{spec.height}; using the file (frames of the spec '
+                      'size get scaled intrinsics if the aspect ratio agrees)')
 
     def _warn_fit(self, summary: Optional[dict]):
         if summary and summary['fit_error_px'] > FIT_WARNING_PX:
-            self.get_logger().warning(
-                f"the published {summary['distortion_model']} model departs from the zero-shot lens by up to "
+            self._log(
+                'warning', f"the published {summary['distortion_model']} model departs from the zero-shot lens by up to "
                 f"{summary['fit_error_px']:.3g} px (more than {FIT_WARNING_PX:g} px): consumers of CameraInfo "
                 'see that error' + (' (use distortion_model: equidistant for a lens this wide)'
                                     if summary['distortion_model'] != 'equidistant' else ''))
@@ -194,18 +275,39 @@ class ZeroShotCalibNode(Node):
             f'  rectify    {"on" if self._active.rectify_enabled else "off"}'
             f' (maps at most max_map_memory_mb = {self._map_budget})',
             f'  calibration file: {self._file_state}',
+            f'  frame path {self._frame_path_text()}',
         ])
+
+    def _frame_path_text(self) -> str:
+        if self._serialized:
+            return ('serialized: image_raw taken as CDR bytes, image_rect and camera_info published as bytes'
+                    + (f' ({self._frame_path_reason})' if self._frame_path_reason else ''))
+        return f'message: sensor_msgs/Image objects ({self._frame_path_reason})'
 
     def _create_endpoints(self):
         """Publishers and subscription with the reliability of the image publisher (see housekeeping)."""
+        self._create_info_publisher()
+        self._create_image_endpoints()
+
+    def _create_info_publisher(self):
         info_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=self._reliability,
                               durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self._info_pub = self.create_publisher(CameraInfo, 'camera_info', info_qos)
+
+    def _create_image_endpoints(self):
         self._sync_rect_publisher()
         # depth 10 on the way in: a frame that takes long to arrive (a 30 MB one takes ~0.3 s
         # through DDS) must not push the frames queued behind it out of the reader's history
-        self._image_sub = self.create_subscription(Image, 'image_raw', self._on_image,
-                                                   self._image_qos(self._image_reliability, depth=10))
+        image_qos = self._image_qos(self._image_reliability, depth=10)
+        if self._serialized:
+            try:
+                self._image_sub = self.create_subscription(Image, 'image_raw', self._on_serialized_image,
+                                                           image_qos, raw=True)
+                return
+            except TypeError:  # an rclpy without raw subscriptions
+                self._serialized, self._frame_path_reason = False, 'this rclpy has no raw subscriptions'
+                self.get_logger().warning(f'frame path {self._frame_path_text()}')
+        self._image_sub = self.create_subscription(Image, 'image_raw', self._on_image, image_qos)
 
     def _sync_rect_publisher(self):
         """image_rect is advertised only while rectify is on (it would collide with image_proc's)."""
@@ -242,43 +344,112 @@ class ZeroShotCalibNode(Node):
         self._info_pub.publish(msg)
 
     def _on_image(self, msg: Image):
+        """The message path: a deserialized sensor_msgs/Image."""
         self._stats['frames_received'] += 1
         self._last_image_time = time.monotonic()
+        self._process_message(msg)
+
+    def _process_message(self, msg: Image):
         active = self._active  # one snapshot per frame: CameraInfo and image_rect agree
-        width, height = msg.width, msg.height
+        calibration = self._frame_calibration(active, msg.width, msg.height, msg.step, msg.encoding, len(msg.data))
+        if calibration is None:
+            return
+        info = self._camera_info_for(calibration)
+        info.header = msg.header
+        self._info_pub.publish(info)
+        self._stats['camera_info_published'] += 1
+        if self._refiner is not None:
+            self._offer_frame(msg.data, msg.width, msg.height, msg.step, msg.encoding, msg.is_bigendian, copy=True)
+        rectifier = self._frame_rectifier(active, calibration, msg.width, msg.height)
+        if rectifier is None:
+            return
+        try:
+            self._publish_rectified(msg, rectifier)
+        except FrameSkipped as exc:
+            self._skip(exc)
+        except Exception as exc:
+            self._skip(FrameSkipped('error', f'cannot rectify frame: {exc}'))
+
+    def _on_serialized_image(self, raw: bytes):
+        """The serialized path: the CDR bytes of a sensor_msgs/Image, read in place."""
+        self._stats['frames_received'] += 1
+        self._last_image_time = time.monotonic()
+        try:
+            header = parse_image(raw)
+        except NotPlainCdr as exc:
+            self._via_message_path(raw, exc)
+            return
+        except CdrError as exc:
+            self._skip(FrameSkipped('malformed', str(exc)))
+            return
+        active = self._active  # one snapshot per frame: CameraInfo and image_rect agree
+        width, height = header.width, header.height
+        calibration = self._frame_calibration(active, width, height, header.step, header.encoding, header.data_size)
+        if calibration is None:
+            return
+        _publish_serialized(self._info_pub, self._serialized_info_for(calibration, header))
+        self._stats['camera_info_published'] += 1
+        if self._refiner is not None:  # raw is an immutable bytes object: its pixels are held, not copied
+            self._offer_frame(pixel_bytes(raw, header), width, height, header.step, header.encoding,
+                              header.is_bigendian, copy=False)
+        rectifier = self._frame_rectifier(active, calibration, width, height)
+        if rectifier is None:
+            return
+        try:
+            self._publish_rectified_serialized(raw, header, rectifier)
+        except FrameSkipped as exc:
+            self._skip(exc)
+        except Exception as exc:
+            self._skip(FrameSkipped('error', f'cannot rectify frame: {exc}'))
+
+    def _via_message_path(self, raw: bytes, why: Exception):
+        """A frame the serialized reader does not decode exactly: deserialized, then as before."""
+        from rclpy.serialization import deserialize_message
+        try:
+            msg = deserialize_message(raw, Image)
+        except Exception as exc:  # what the middleware cannot read either
+            self._skip(FrameSkipped('malformed', f'serialized Image cannot be deserialized ({why}): {exc}'))
+            return
+        self._stats['frames_via_message_path'] += 1
+        if self._due('message_path'):
+            self.get_logger().info(f'frame taken on the message path: {why} '
+                                   f'[{self._stats["frames_via_message_path"]} so far]')
+        self._process_message(msg)
+
+    def _frame_calibration(self, active: ActiveCalibration, width: int, height: int, step: int, encoding: str,
+                           nbytes: int) -> Optional[CameraCalibration]:
+        """The calibration of a frame, or None (skipped and counted)."""
         try:
             # the same checks whatever rectify is: no CameraInfo for an image the message lacks
-            check_frame(width, height, msg.step, msg.encoding, len(msg.data))
+            check_frame(width, height, step, encoding, nbytes)
             if binning_or_roi_reason(active.calibration):
                 # CameraInfo as given (binning and roi tell consumers how the frame maps); no scaling
                 calibration = active.calibration
                 if (width, height) != binned_roi_size(calibration):
                     raise FrameSkipped('aspect', f'image {width}x{height} is not the {"x".join(map(str, binned_roi_size(calibration)))} '
                                        'that the calibration\'s binning and roi describe')
-            else:
-                calibration = active.calibration_for(width, height)
+                return calibration
+            return active.calibration_for(width, height)
         except FrameSkipped as exc:
             self._skip(exc)
-            return
         except Exception as exc:  # never let a frame take the node down
             self._skip(FrameSkipped('error', f'cannot calibrate frame: {exc}'))
-            return
-        info = self._camera_info_for(calibration)
-        info.header = msg.header
-        self._info_pub.publish(info)
-        self._stats['camera_info_published'] += 1
+        return None
+
+    def _frame_rectifier(self, active: ActiveCalibration, calibration: CameraCalibration, width: int, height: int):
+        """The built rectifier of a frame, or None (not rectifying, or skipped and counted)."""
         if not active.rectify_enabled or self._rect_pub is None:
-            return
+            return None
         try:
             rectifier = active.rectifier_for(width, height)
             if rectifier is None:
                 self._request_maps(active, calibration, width, height)
-                return
-            self._publish_rectified(msg, rectifier)
+            return rectifier
         except FrameSkipped as exc:
             self._skip(exc)
         except Exception as exc:
             self._skip(FrameSkipped('error', f'cannot rectify frame: {exc}'))
+        return None
 
     def _request_maps(self, active: ActiveCalibration, calibration: CameraCalibration, width: int, height: int):
         """A frame whose maps are not built: skipped (counted) while the builder builds them, so
@@ -306,6 +477,31 @@ class ZeroShotCalibNode(Node):
             self._info_cache = (calibration, info)
         return info
 
+    def _serialized_info_for(self, calibration: CameraCalibration, header) -> bytearray:
+        """The serialized CameraInfo of ``calibration`` with the frame's header: a template per
+        calibration and frame_id, built once; only the stamp is written frame after frame
+        (publishing copies the bytes before it returns)."""
+        key = (id(calibration), header.frame_id)
+        cached = self._info_templates.get(key)
+        if cached is None or cached[0] is not calibration:
+            if len(self._info_templates) >= _INFO_TEMPLATES_CACHED:
+                self._info_templates.clear()
+            cached = self._info_templates[key] = (calibration, serialized_camera_info(calibration, header.frame_id))
+        template = cached[1]
+        patch_stamp(template, header.sec, header.nanosec)
+        return template
+
+    def _publish_rectified_serialized(self, raw: bytes, header, rectifier):
+        """The pixels viewed in ``raw`` (no copy) are remapped into the buffer of the serialized
+        image_rect, which is published as it is."""
+        image = image_array(pixel_bytes(raw, header), header.width, header.height, header.step, header.encoding,
+                            header.is_bigendian)
+        out = self._rect_serialized.prepare(header.sec, header.nanosec, header.frame_id, header.encoding,
+                                            image.shape, image.dtype)
+        rectifier.rectify(image, out=out)
+        _publish_serialized(self._rect_pub, self._rect_serialized.buffer)
+        self._stats['frames_rectified'] += 1
+
     def _publish_rectified(self, msg: Image, rectifier):
         image = image_array(msg.data, msg.width, msg.height, msg.step, msg.encoding, msg.is_bigendian)
         nbytes = image.nbytes
@@ -327,12 +523,18 @@ class ZeroShotCalibNode(Node):
 
     def _skip(self, exc: FrameSkipped):
         self._stats[f'frames_skipped_{exc.reason}'] += 1
-        now = self.get_clock().now().nanoseconds
-        last = self._warned_at.get(exc.reason)
-        if last is None or now - last > WARN_THROTTLE_SECONDS * 1e9:
-            self._warned_at[exc.reason] = now
+        if self._due(exc.reason):
             self.get_logger().warning(f'frame skipped ({exc.reason}): {exc} '
                                       f'[{self._stats[f"frames_skipped_{exc.reason}"]} so far]')
+
+    def _due(self, key: str) -> bool:
+        """Whether a log line about ``key`` is due (at most one every WARN_THROTTLE_SECONDS)."""
+        now = self.get_clock().now().nanoseconds
+        last = self._warned_at.get(key)
+        if last is None or now - last > WARN_THROTTLE_SECONDS * 1e9:
+            self._warned_at[key] = now
+            return True
+        return False
 
     # --- housekeeping: QoS matching, memory and diagnostics ---------------------------------
     def _on_housekeeping(self):
@@ -341,6 +543,7 @@ class ZeroShotCalibNode(Node):
             self._builder.forget_size(self._active, *size)
             self.get_logger().info(f'rectification maps of {size[0]}x{size[1]} released (no such frame '
                                    f'for {OTHER_SIZE_IDLE_SECONDS:g} s)')
+        self._poll_refiner()
         self._publish_diagnostics()
 
     def _match_image_reliability(self):
@@ -366,10 +569,14 @@ class ZeroShotCalibNode(Node):
                                   message=f'calibration from {self._active.source}')
         pending = self._builder.pending
         values = {'source': self._active.source, 'generation': self._active.generation,
+                  'frame_path': 'serialized' if self._serialized else f'message ({self._frame_path_reason})',
                   'fx': self._active.calibration.K[0, 0], 'qos_reliability': self._reliability.name,
                   'pending_generation': pending.active.generation if pending else '',
                   'maps_build_ms': f'{self._maps_build_ms:.1f}',
-                  'map_memory_mb': f'{self._active.map_memory_bytes / 2**20:.1f}', **self._stats}
+                  'map_memory_mb': f'{self._active.map_memory_bytes / 2**20:.1f}', **self._refine_values_text(),
+                  **self._stats}
+        if values['refine_state'] == 'failed':
+            status.level = DiagnosticStatus.WARN
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
@@ -380,7 +587,15 @@ class ZeroShotCalibNode(Node):
         if self._reverting:  # restoring the values in force (see _on_calibration_built)
             return SetParametersResult(successful=True)
         names = {p.name for p in parameters}
+        refine_values = None
+        if names & set(REFINE_PARAMETERS):
+            try:
+                refine_values = self._refine_values(self._values(parameters))
+            except SpecError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
         if not names & set(CALIBRATION_PARAMETERS + RECTIFICATION_PARAMETERS):
+            if refine_values is not None:
+                self._set_refine(*refine_values)
             return SetParametersResult(successful=True)
         # Checked and solved here, whole (a rejection must name its reason, and a success means
         # adopted); the maps are built on the builder thread and swapped in when ready.
@@ -409,6 +624,10 @@ class ZeroShotCalibNode(Node):
             self.get_logger().error(f'parameter change rejected, calibration unchanged: {exc!r}')
             return SetParametersResult(successful=False, reason=f'cannot calibrate with these values: {exc!r}')
         self._settings = settings
+        if refine_values is not None:
+            self._refine, self._refine_interval = refine_values
+            if self._refiner is not None:
+                self._refiner.interval = self._refine_interval
         changed = ', '.join(f'{p.name}={p.value!r}' for p in parameters)
         self._adopt(active, f'parameters changed ({changed}), re-solved:\n' + summary_text(summary)
                     if summary else f'parameters changed ({changed})', values)
@@ -421,6 +640,7 @@ class ZeroShotCalibNode(Node):
         changes build on it (``_newest``) even before it is in force."""
         self._generation = max(self._generation, active.generation)
         self._newest = active
+        self._follow_with_refiner(active)
         job = MapJob(active, log, values=values if values is not None else self._values())
         if not active.rectify_enabled:  # nothing to build: in force at once
             self._swap_in(job)
@@ -502,7 +722,146 @@ class ZeroShotCalibNode(Node):
         builder = getattr(self, '_builder', None)
         if builder is not None:
             builder.stop()
+        refiner = getattr(self, '_refiner', None)
+        if refiner is not None:
+            refiner.stop('the node is shutting down')
         return super().destroy_node()
+
+    # --- refine: the calibration refined from straight lines in the frames ------------------
+    @staticmethod
+    def _refine_values(values: dict) -> tuple:
+        """(refine, refine_interval) checked, else SpecError naming the allowed values."""
+        if not isinstance(values['refine'], bool):
+            raise SpecError('refine', values['refine'], 'true or false')
+        return values['refine'], number_in_range('refine_interval', values['refine_interval'], 0.1, 3600.0)
+
+    def _set_refine(self, refine: bool, interval: float):
+        self._refine, self._refine_interval = refine, interval
+        if self._refiner is not None:
+            self._refiner.interval = interval
+        self._follow_with_refiner(self._newest)
+
+    def _follow_with_refiner(self, active: ActiveCalibration):
+        """Start, keep or stop the refiner for ``active`` (the newest calibration): only one from
+        the spec or an earlier refinement is refined; a refiner whose basis is replaced by another
+        kind of calibration is stopped (what it found is discarded), one whose spec changed restarts."""
+        refiner = self._refiner
+        if not self._refine:
+            why = 'refine is false'
+        elif active.source not in REFINABLE_SOURCES:
+            why = (f'the calibration from {active.source} is not refined (only one from the spec or an '
+                   'earlier refinement)')
+        else:
+            why = None
+        if why is not None:
+            if refiner is not None:
+                before = refiner.status
+                refiner.stop(why)
+                self._refiner = None
+                self.get_logger().info(f'refinement stopped ({before.state}, {before.frames_kept} frame(s) taken; '
+                                       f'what it found is discarded): {why}')
+            elif self._refine and why != self._refine_off:
+                self.get_logger().info(f'refine: {why}')
+            self._refine_off = why
+            return
+        if refiner is not None:
+            if active.source == 'refined':
+                return  # its own result, or a change of rectification only
+            if refiner.spec == self._settings.spec and refiner.status.state not in ('failed', 'stopped'):
+                return  # re-solved from the same spec: the evidence still holds
+            refiner.stop('the spec changed')
+        initial = active.camera if active.source == 'refined' else None
+        self._refiner = OnlineRefiner(self._settings.spec, self._refine_interval, initial=initial)
+        self._refine_logged = None
+        self.get_logger().info(
+            f'refine: sampling one frame every {self._refine_interval:g} s (worker pid {self._refiner.pid}, '
+            f'low priority); refining the calibration from {active.source} (generation {active.generation})')
+
+    def _offer_frame(self, data, width: int, height: int, step: int, encoding: str, is_bigendian: bool, copy: bool):
+        """Frame callback: a comparison unless the refiner takes this frame."""
+        now = time.monotonic()
+        refiner = self._refiner
+        if not refiner.due(now):
+            return
+        try:
+            image = image_array(data, width, height, step, encoding, is_bigendian)
+        except FrameSkipped:
+            return  # already counted as skipped by the frame's own checks, or an encoding it cannot read
+        if refiner.offer(image, now, copy=copy):
+            self._stats['refine_frames_sampled'] += 1
+
+    def _poll_refiner(self):
+        """Housekeeping: log the refiner's state changes; adopt an accepted refinement."""
+        refiner = self._refiner
+        if refiner is None:
+            return
+        status = refiner.status
+        key = (status.state, status.frames_processed)
+        if key != self._refine_logged and status.frames_processed:
+            self._refine_logged = key
+            text = (f'refine: {status.state} after {status.frames_processed} frame(s): {status.lines} lines, '
+                    f'coverage {100 * status.coverage:.0f} %: {status.reason}')
+            if status.state in ('failed', 'error'):
+                self.get_logger().warning(text)
+            else:
+                self.get_logger().info(text)
+        elif status.state == 'failed' and self._refine_logged != 'failed':
+            self._refine_logged = 'failed'
+            self.get_logger().warning(f'refine: failed: {status.reason}')
+        result = refiner.take_result()
+        if result is not None:
+            self._adopt_refinement(result)
+
+    def _adopt_refinement(self, result):
+        basis = self._newest
+        if basis.source not in REFINABLE_SOURCES:  # stopped refiners give no result; defensive
+            self.get_logger().info(f'refined calibration discarded: the calibration is from {basis.source}')
+            return
+        width, height = basis.calibration.width, basis.calibration.height
+        settings = self._settings
+        s = result.status
+        try:
+            calibration = refined_calibration(result.camera, width, height, settings.balance, settings.fov_scale,
+                                              settings.camera_name)
+            camera = calibration.camera()
+            active = ActiveCalibration(calibration, camera, 'refined', self._generation + 1, settings.rectify,
+                                       settings.interpolation, build_maps=False,
+                                       map_budget_bytes=self._map_budget_bytes)
+        except (CalibrationFileError, MapBudgetExceeded, ValueError) as exc:
+            self.get_logger().warning(f'refined calibration not adopted: {exc}')
+            return
+
+        def px(v):
+            return '?' if v is None else f'{v:.3g}'
+
+        def text(c):
+            return f'K {np.round(c.K, 3).tolist()}\n    {c.distortion_model} D {np.round(c.D.ravel(), 6).tolist()}'
+        self.get_logger().info(
+            f'refinement accepted: {s.lines} lines from {s.frames_used} frame(s), coverage {100 * s.coverage:.0f} %, '
+            f'line residual {px(s.residual_px_before)} -> {px(s.residual_px)} px, uncertainty '
+            f'{px(s.zero_shot_uncertainty_px)} -> {px(s.uncertainty_px)} px, principal point moved '
+            f'{px(s.principal_point_shift_px)} px; adopting it as generation {active.generation}\n'
+            f'  before (generation {basis.generation}, {basis.source}): {text(basis.calibration)}\n'
+            f'  after  (refined): {text(calibration)}')
+        try:
+            calibration.save(self._url_path)
+            saved = f'saved to {self._url_path}'
+        except (OSError, CalibrationFileError) as exc:
+            saved = f'NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'
+            self.get_logger().warning(f'refined calibration {saved}')
+        self._adopt(active, f'refined calibration adopted (generation {active.generation}, source refined), '
+                    f'{saved}')
+
+    def _refine_values_text(self) -> dict:
+        refiner = self._refiner
+        if refiner is None:
+            return {'refine_state': 'off', 'refine_reason': self._refine_off}
+        values = refiner.status.values()
+        return {'refine_state': values['state'], 'refine_reason': values['reason'],
+                'refine_frames': values['frames_processed'], 'refine_lines': values['lines'],
+                'refine_coverage': values['coverage'], 'refine_residual_px': values['residual_px'],
+                'refine_uncertainty_px': values['uncertainty_px'],
+                'refine_zero_shot_uncertainty_px': values['zero_shot_uncertainty_px']}
 
     def _on_set_camera_info(self, request, response):
         """As camera drivers offer it to cameracalibrator: validated whole (including the maps'

@@ -145,14 +145,20 @@ class ShapePrior:
     loss = None
     loss_scale = 1.0
 
-    def __init__(self, reference, theta_max: float, sigma_relative: float = SHAPE_SIGMA, samples: int = 8):
+    def __init__(self, reference, theta_max: float, sigma_relative: float = SHAPE_SIGMA, samples: int = 8,
+                 radius: bool = False):
         self.theta = np.linspace(theta_max / samples, theta_max, samples)
+        self.radius = bool(radius)
+        self.f_reference = float(reference.fx) if radius else 1.0
         with np.errstate(invalid='ignore'):
             self.reference = np.asarray(reference.theta_d(self.theta), dtype=float)
         self.sigma_relative = float(sigma_relative)
         self.sigma = self.sigma_relative * math.sqrt(samples)
 
     def residuals(self, camera) -> np.ndarray:
+        """(theta_d(t) - ref(t)) / t; with ``radius``, of the image radius f theta_d(t) relative
+        to the reference's: (f theta_d(t) - f_ref ref(t)) / (f_ref t)."""
+        scale = camera.fx / self.f_reference if self.radius else 1.0
         with np.errstate(invalid='ignore', over='ignore'):
-            r = (np.asarray(camera.theta_d(self.theta), dtype=float) - self.reference) / self.theta
+            r = (scale * np.asarray(camera.theta_d(self.theta), dtype=float) - self.reference) / self.theta
         return np.where(np.isfinite(r), r, 1.0)

@@ -3,15 +3,20 @@
 ROS tools understand CameraInfo's ``equidistant`` (OpenCV fisheye, Kannala-Brandt k1..k4) and
 ``plumb_bob`` models, not the paper's G_w. Both are linear in their coefficients once the focal
 length is fixed, so the coefficients that minimise the *maximum* pixel error over every off-axis
-angle the image contains are the solution of a small linear programme (a Chebyshev fit); least
-squares is the fallback if the programme fails.
+angle the image contains are the solution of a small linear programme (a Chebyshev fit).
+
+The programme is solved by the discrete Remez exchange (numpy only): the columns, odd powers of
+theta (or of tan theta), form a Haar system on theta > 0, so the minimax solution levels the
+error with alternating signs on m + 1 of the samples, and exchanging one sample at a time
+reaches those samples in a few iterations. It gives the linear programme's vertex to rounding,
+and keeps scipy.optimize (half a second to import) off the node's path to its first CameraInfo.
+scipy's ``linprog`` is the fallback if the exchange does not converge, least squares if that fails.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linprog
 
 from .models import KannalaBrandtCamera, PlumbBobCamera, RadialCamera
 
@@ -32,8 +37,64 @@ class DistortionFit:
     """The fitted camera (KannalaBrandtCamera or PlumbBobCamera) with the same K."""
 
 
+CONVERGED = 1e-12
+"""The exchange stops when no sample's error exceeds the levelled error by this fraction."""
+
+
+def _remez(A: np.ndarray, b: np.ndarray, iterations: int = 200):
+    """x minimising max |A x - b| by the discrete Remez (single-point) exchange, or None if it
+    does not converge (module docstring). Rows with an all-zero A and b (theta = 0) carry no
+    error and are never references."""
+    n, m = A.shape
+    scale = np.max(np.abs(A), axis=0)
+    if not np.all(scale > 0):
+        return None
+    A = A / scale  # unit columns: the powers of theta differ by orders of magnitude
+    candidates = np.flatnonzero(np.any(A != 0, axis=1) | (b != 0))
+    if len(candidates) < m + 1:
+        return None
+    ref = candidates[np.round(np.linspace(0, len(candidates) - 1, m + 1)).astype(int)]
+    signs = (-1.0) ** np.arange(m + 1)
+    for _ in range(iterations):
+        try:
+            solution = np.linalg.solve(np.c_[A[ref], signs], b[ref])
+        except np.linalg.LinAlgError:
+            return None
+        x, level = solution[:m], abs(solution[m])
+        r = b - A @ x
+        j = int(np.argmax(np.abs(r)))
+        if abs(r[j]) <= level * (1 + CONVERGED) + 1e-300:
+            return x / scale
+        if j in ref:  # the levelled system is solved only to rounding: that is convergence
+            return x / scale if abs(r[j]) <= level * (1 + 1e-6) else None
+        s = np.sign(r[j])
+        ref_signs = np.sign(r[ref])
+        k = int(np.searchsorted(ref, j))
+        if k == 0:
+            if ref_signs[0] == s:
+                ref = np.r_[j, ref[1:]]
+            else:
+                ref = np.r_[j, ref[:-1]]
+        elif k == len(ref):
+            if ref_signs[-1] == s:
+                ref = np.r_[ref[:-1], j]
+            else:
+                ref = np.r_[ref[1:], j]
+        else:
+            i = k - 1 if ref_signs[k - 1] == s else k
+            ref = ref.copy()
+            ref[i] = j
+        if len(np.unique(ref)) != m + 1:
+            return None
+    return None
+
+
 def _chebyshev_fit(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """x minimising max |A x - b| (linear programme over x and the bound t)."""
+    """x minimising max |A x - b| (module docstring)."""
+    x = _remez(A, b)
+    if x is not None:
+        return x
+    from scipy.optimize import linprog  # only if the exchange fails: half a second to import
     n, m = A.shape
     ones = np.ones((n, 1))
     result = linprog(np.r_[np.zeros(m), 1.0],

@@ -41,6 +41,7 @@ Imports numpy and OpenCV and ``core.lens`` only.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 from typing import List, Optional, Sequence, Tuple, Union
 
@@ -345,16 +346,18 @@ def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray, interpolation=cv2.INT
     return out.ravel()[:n].reshape(shape)
 
 
-_LSD = None
+_LSD = threading.local()
+"""One line segment detector per thread: an OpenCV LSD object is not safe to share between
+threads detecting at once."""
 
 
 def _lsd():
-    global _LSD
-    if _LSD is None:
+    detector = getattr(_LSD, 'detector', None)
+    if detector is None:
         if not hasattr(cv2, 'createLineSegmentDetector'):
             raise RuntimeError('this OpenCV has no line segment detector (cv2.createLineSegmentDetector)')
-        _LSD = cv2.createLineSegmentDetector(1)  # LSD_REFINE_STD
-    return _LSD
+        detector = _LSD.detector = cv2.createLineSegmentDetector(1)  # LSD_REFINE_STD
+    return detector
 
 
 def _segments(view_image: np.ndarray) -> np.ndarray:
@@ -463,11 +466,7 @@ def _view_points(view: View, camera: CameraModel, grey: np.ndarray, smooth: np.n
     # weak points: below the absolute floor or far below their segment's median
     med = np.zeros(len(segs))
     if good.any():
-        order = np.argsort(seg_id[good], kind='stable')
-        gs, gg = seg_id[good][order], grad[good][order]
-        cuts = np.nonzero(np.diff(gs))[0] + 1
-        for ids, vals in zip(np.split(gs, cuts), np.split(gg, cuts)):
-            med[ids[0]] = np.median(vals)
+        med = np.nan_to_num(_group_median(grad[good], seg_id[good], len(segs)))
     good &= grad >= np.maximum(opts['min_gradient'], 0.35 * med[seg_id])
     return refined[good], grad[good], seg_id[good]
 
@@ -738,16 +737,33 @@ def _merge(camera: CameraModel, pieces: List[_Piece], opts) -> List[_Cluster]:
     return clusters
 
 
+def _thin(pts: np.ndarray, min_d: float) -> np.ndarray:
+    """Mask of the points kept when walking along ``pts`` and keeping each point at least
+    ``min_d`` from the last kept one. Runs of points already that far apart from their
+    predecessor are kept without a Python step each (most of a curve: only where overlapping
+    views put duplicates does the walk have to decide point by point)."""
+    n = len(pts)
+    keep = np.zeros(n, bool)
+    if n == 0:
+        return keep
+    step = np.hypot(*np.diff(pts, axis=0).T) if n > 1 else np.zeros(0)
+    x, y = pts[:, 0].tolist(), pts[:, 1].tolist()
+    far = (step >= min_d).tolist()
+    keep[0] = True
+    last = 0
+    for i in range(1, n):
+        # a point far from its predecessor, which was kept, is far enough from the last kept
+        if (far[i - 1] and last == i - 1) or math.hypot(x[i] - x[last], y[i] - y[last]) >= min_d:
+            keep[i] = True
+            last = i
+    return keep
+
+
 def _finish(camera: CameraModel, cl: _Cluster, image: ImageId, opts) -> Optional[Curve]:
     pts, rays, phi, strength = cl.points, cl.rays, cl.phi, cl.strength
     # thin out duplicates (overlapping views see the same edge): keep points >= 0.6 spacing apart
     min_d = 0.6 * opts['spacing_px']
-    keep = np.zeros(len(pts), bool)
-    last = None
-    for i in range(len(pts)):
-        if last is None or math.hypot(pts[i, 0] - pts[last, 0], pts[i, 1] - pts[last, 1]) >= min_d:
-            keep[i] = True
-            last = i
+    keep = _thin(pts, min_d)
     pts, rays, phi, strength = pts[keep], rays[keep], phi[keep], strength[keep]
     if len(pts) < opts['min_points']:
         return None

@@ -46,6 +46,7 @@ The term follows the estimation package's term interface (``residuals(camera)`` 
 """
 from __future__ import annotations
 
+import math
 from typing import Optional, Sequence
 
 import numpy as np
@@ -80,8 +81,43 @@ def fit_planes(rays: np.ndarray, starts: np.ndarray, weights: Optional[np.ndarra
     w = rays if weights is None else rays * weights[:, None]
     outer = w[:, :, None] * w[:, None, :]
     scatter = np.add.reduceat(outer.reshape(len(rays), 9), starts, axis=0).reshape(-1, 3, 3)
-    _, vectors = np.linalg.eigh(scatter)
-    return vectors[:, :, 0]
+    return smallest_eigenvectors(scatter)
+
+
+def smallest_eigenvectors(S: np.ndarray, iterations: int = 3) -> np.ndarray:
+    """Unit eigenvectors (C, 3) of the smallest eigenvalue of symmetric positive semi-definite
+    3 x 3 matrices S (C, 3, 3), from their adjugates: adj(S) = l2 l3 v1 v1^T + l1 l3 v2 v2^T +
+    l1 l2 v3 v3^T (eigenvalues l1 >= l2 >= l3), so its largest column is v3 up to terms l3 / l2,
+    and each multiplication by adj(S) shrinks them by l3 / l2 again. The scatter of rays that lie
+    near a plane has l3 / l2 ~ (noise / span)^2 (1e-6 for a typical curve, 1e-3 for a short noisy
+    one), so three multiplications leave v3 exact to double precision (the last one checks it: one
+    that still moves v goes to ``eigh``) where a batched ``eigh``
+    costs ten times as much (the straightness term evaluates this hundreds of times per fit).
+    Matrices whose adjugate vanishes (rank < 2: fewer than two distinct rays) go to ``eigh``."""
+    a, b, c = S[:, 0, 0], S[:, 0, 1], S[:, 0, 2]
+    d, e, f = S[:, 1, 1], S[:, 1, 2], S[:, 2, 2]
+    adj = np.empty_like(S)
+    adj[:, 0, 0] = d * f - e * e
+    adj[:, 1, 1] = a * f - c * c
+    adj[:, 2, 2] = a * d - b * b
+    adj[:, 0, 1] = adj[:, 1, 0] = c * e - b * f
+    adj[:, 0, 2] = adj[:, 2, 0] = b * e - c * d
+    adj[:, 1, 2] = adj[:, 2, 1] = b * c - a * e
+    norms = np.einsum('cij,cij->cj', adj, adj)
+    v = adj[np.arange(len(S)), :, np.argmax(norms, axis=1)]
+    previous = v
+    for _ in range(iterations):
+        previous = v
+        v = np.einsum('cij,cj->ci', adj, v)
+        length = np.sqrt(np.einsum('ci,ci->c', v, v))
+        v = v / np.where(length > 0, length, 1.0)[:, None]
+    scale = np.einsum('cii->c', S)
+    # not converged (l3 close to l2: a curve shorter than its noise) or degenerate: eigh
+    moved = 1.0 - np.abs(np.einsum('ci,ci->c', v, previous))
+    bad = ~(np.sqrt(norms.max(axis=1)) > 1e-12 * scale * scale) | ~np.all(np.isfinite(v), axis=1) | ~(moved < 1e-14)
+    if np.any(bad):
+        v[bad] = np.linalg.eigh(S[bad])[1][:, :, 0]
+    return v
 
 
 class StraightnessTerm:
@@ -141,9 +177,9 @@ class StraightnessTerm:
         normals = fit_planes(safe, self.starts)
         residual = self._residual(camera, safe, normals)
         if self.reweight:
-            angle = np.abs(np.sum(safe * normals[self.curve_of_point], axis=1))
+            angle = np.abs(np.einsum('ij,ij->i', safe, normals[self.curve_of_point]))
             with np.errstate(invalid='ignore', divide='ignore'):
-                scale = np.linalg.norm(residual, axis=1) / angle
+                scale = np.sqrt(np.einsum('ij,ij->i', residual, residual)) / angle
             good = np.isfinite(scale) & (angle > 1e-12) & ok
             # the curve's mean scale where the ratio is ill-defined (points on the plane)
             count = np.add.reduceat(good.astype(float), self.starts)
@@ -157,20 +193,49 @@ class StraightnessTerm:
 
     def _residual(self, camera, rays, normals):
         n = normals[self.curve_of_point]
-        on_plane = rays - np.sum(rays * n, axis=1, keepdims=True) * n
+        on_plane = rays - np.einsum('ij,ij->i', rays, n)[:, None] * n
         with np.errstate(invalid='ignore', divide='ignore'):
-            on_plane /= np.linalg.norm(on_plane, axis=1, keepdims=True)
-        foot = camera.project(on_plane)
-        residual = self.points - foot
+            on_plane /= np.sqrt(np.einsum('ij,ij->i', on_plane, on_plane))[:, None]
         if not self.perpendicular:
-            return residual
+            return self.points - camera.project(on_plane)
         # slide along the curve's image to the closest pixel (first order): keep the component
         # of the residual across the curve's tangent g = d project / d angle along the circle
         along = np.cross(n, on_plane)
-        g = (camera.project(on_plane + TANGENT_STEP * along) - foot) / TANGENT_STEP
+        both = camera.project(np.concatenate([on_plane, on_plane + TANGENT_STEP * along]))
+        foot = both[:len(on_plane)]
+        residual = self.points - foot
+        g = (both[len(on_plane):] - foot) / TANGENT_STEP
         with np.errstate(invalid='ignore', divide='ignore'):
-            g /= np.linalg.norm(g, axis=1, keepdims=True)
-        return residual - np.sum(residual * g, axis=1, keepdims=True) * g
+            g /= np.sqrt(np.einsum('ij,ij->i', g, g))[:, None]
+        return residual - np.einsum('ij,ij->i', residual, g)[:, None] * g
+
+    def systematic_modes(self) -> np.ndarray:
+        """(2N, 2): per residual, the two lowest shapes of a systematic error of its curve that
+        its plane cannot absorb: a bow and an S (Legendre P2 and P3 of the position t in [-1, 1]
+        along the curve, each scaled to unit RMS over the curve), along the curve's normal.
+        A detector errs in these shapes along a whole curve (blur and anti-aliasing of a bent
+        edge, a gently curved edge taken for a line); they carry the curvature that tells the
+        distortion and the principal point, so a floor on them is a floor on what lines can say."""
+        p = self.points
+        out = np.zeros((len(p), 2, 2))
+        for c, (start, size) in enumerate(zip(self.starts, self.sizes)):
+            q = p[start:start + size]
+            step = np.hypot(*np.diff(q, axis=0).T)
+            arc = np.r_[0.0, np.cumsum(step)]
+            t = 2.0 * arc / max(arc[-1], 1e-9) - 1.0
+            tangent = np.gradient(q, axis=0)
+            tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
+            normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
+            for k, mode in enumerate((1.5 * t * t - 0.5, 2.5 * t ** 3 - 1.5 * t)):
+                mode = mode - mode.mean()
+                rms = math.sqrt(float(np.mean(mode * mode)))
+                out[start:start + size, :, k] = normal * (mode / rms if rms > 0 else 0.0)[:, None]
+        return out.reshape(2 * len(p), 2)
+
+    def residual_clusters(self) -> np.ndarray:
+        """The curve of each residual (2N,): errors shared along a curve are one cluster for a
+        cluster-robust covariance."""
+        return np.repeat(self.curve_of_point, 2)
 
     def residuals(self, camera: CameraModel) -> np.ndarray:
         """Unwhitened residuals (2N,) in pixels; points without a ray get ``invalid_px``."""

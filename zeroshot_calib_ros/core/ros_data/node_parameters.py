@@ -111,6 +111,16 @@ PARAMETERS = {
                                          'machine\'s memory); a change or frame size whose maps exceed it is '
                                          'refused', 'integer', read_only=True, int_range=(0, 2**40),
                                          constraints='an integer number of MiB; 0 = automatic'),
+    'refine': _parameter(False, 'Refine the calibration from straight lines in the streamed frames (issue 13): '
+                                'one frame every refine_interval s, lines and fit in a low-priority worker '
+                                'process; when the quality gate passes, the refined calibration (equidistant, '
+                                'source refined) is adopted and saved to camera_info_url. Only a calibration '
+                                'from the spec (or an earlier refinement) is refined, never one from a file '
+                                'or set_camera_info', 'bool'),
+    'refine_interval': _parameter(2.0, 'With refine: seconds between the frames taken for refinement (at most '
+                                       'one per interval, and only while the worker is idle)', 'double',
+                                       fp_range=(0.1, 3600.0), dynamic=True,
+                                       constraints='a number of seconds from 0.1 to 3600'),
 }
 
 

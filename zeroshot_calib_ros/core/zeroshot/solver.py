@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 from typing import Dict
 
 import numpy as np
-from scipy.optimize import brentq
 
 from ..lens.models import ZeroShotCamera
+from .brent import brentq
 from ..lens.projections import PROJECTIONS, FisheyeProjection
 from .spec import CameraSpec, SpecError
 from ..lens.wide_fov import WIDE

@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
 import numpy as np
-from scipy.optimize import brentq
 
 from ..lens.projections import PROJECTIONS, FisheyeProjection
+from .brent import brentq
 from ..lens.wide_fov import WIDE, WIDE_LAWS, WideFovCamera, WideProjection, psi, wide_projection
 from .spec import CameraSpec, SpecError
 

@@ -1,0 +1,169 @@
+"""The node's refinement without DDS (core/ros_data/online_refinement.py): frames offered as a
+stream, one kept every interval, lines and fit in a low-priority worker process, the gate of
+refine_camera; checked against a known camera rendered with test/scenes.py."""
+import os
+import signal
+import sys
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from scenes import render
+from zeroshot_calib_ros.core import CameraSpec
+from zeroshot_calib_ros.core.estimation.refine import zero_shot_camera
+from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
+from zeroshot_calib_ros.core.lines.detect import detect_curves
+from zeroshot_calib_ros.core.lens.wide_fov import fields_of_view_through_axis
+from zeroshot_calib_ros.core.ros_data.online_refinement import WORKER_NICE, OnlineRefiner, refined_calibration
+
+TRUE = KannalaBrandtCamera(210.0, 210.0, 327.0, 176.0, 640, 360, np.array([0.02, -0.01, 0.003, -0.0005]))
+SPEC = CameraSpec(640, 360, hfov=172, vfov=97, dfov=198)  # TRUE's FOVs rounded to 1 degree
+
+
+def dense_rms(camera, truth=TRUE, grid=(33, 19)):
+    """RMS pixel distance over a grid of the image between the truth's pixels and where ``camera``
+    puts the truth's rays (no rotation: the principal point's error counts)."""
+    u, v = np.meshgrid(np.linspace(0, truth.width - 1, grid[0]), np.linspace(0, truth.height - 1, grid[1]))
+    pixels = np.stack([u.ravel(), v.ravel()], 1)
+    rays = truth.unproject(pixels)
+    ok = np.isfinite(rays).all(1)
+    return float(np.sqrt(np.mean(np.sum((camera.project(rays[ok]) - pixels[ok]) ** 2, 1))))
+
+
+def wait_for(predicate, timeout, what):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.05)
+    raise AssertionError(f'timed out after {timeout:g} s waiting for {what}')
+
+
+@pytest.fixture
+def refiner_factory():
+    made = []
+
+    def make(*args, **kwargs):
+        refiner = OnlineRefiner(*args, **kwargs)
+        made.append(refiner)
+        return refiner
+    yield make
+    for refiner in made:
+        refiner.stop()
+
+
+def test_streamed_frames_give_a_camera_closer_to_the_truth_than_zero_shot(refiner_factory):
+    """Frames offered as a camera driver would (one frame of the room is enough), the first
+    in a buffer the driver reuses at once (a kept frame is copied before offer returns)."""
+    fovs = fields_of_view_through_axis(TRUE)
+    assert [round(fovs[k]) for k in ('hfov', 'vfov', 'dfov')] == [172, 97, 198]
+    room = render(TRUE, 'room', seed=1)[0]
+    refiner = refiner_factory(SPEC, interval=0.2)
+    # low priority: the stream comes first (SCHED_IDLE: the worker runs only on an otherwise idle core)
+    assert os.getpriority(os.PRIO_PROCESS, refiner.pid) == WORKER_NICE == 19
+    assert os.sched_getscheduler(refiner.pid) == os.SCHED_IDLE
+    buffer = room.copy()
+    assert refiner.offer(buffer, time.monotonic())
+    buffer[:] = 0  # the driver's next frame goes into the same buffer at once
+    wait_for(lambda: refiner.status.frames_processed == 1, 60, 'the first frame to be processed')
+    result = refiner.take_result()
+    assert result is not None, refiner.status
+    status = refiner.status
+    assert status.state == 'refined' and status.reason.startswith('accepted'), status
+    assert status.lines >= 8 and 0 < status.coverage <= 1 and status.uncertainty_px < status.zero_shot_uncertainty_px
+    zs = zero_shot_camera(SPEC, 640, 360)
+    assert dense_rms(result.camera) < 1.5 and dense_rms(result.camera) < 0.25 * dense_rms(zs)  # zero-shot: 8 px
+    assert abs(result.camera.cx - TRUE.cx) < 2 and abs(result.camera.cy - TRUE.cy) < 2  # zero-shot: 8 px off
+    # the ROS record of the refined camera at another size of the same aspect: scaled intrinsics
+    record = refined_calibration(result.camera, 1280, 720, camera_name='cam')
+    assert record.distortion_model == 'equidistant' and record.camera_name == 'cam'
+    np.testing.assert_allclose(record.K, np.diag([2, 2, 1]) @ result.camera.K)
+    np.testing.assert_allclose(record.D.ravel(), result.camera.D)
+    assert not refiner.due(time.monotonic() + 100)  # refined: no more frames kept
+    wait_for(lambda: refiner._process.poll() is not None, 10, 'the worker to exit once refined')
+
+
+def test_one_frame_is_kept_every_interval_and_the_others_are_not_copied(refiner_factory):
+    interval = 0.5
+    refiner = refiner_factory(SPEC, interval=interval)
+    black = np.zeros((360, 640), np.uint8)  # no lines: the worker answers at once ("too few lines")
+    assert refiner.offer(black, time.monotonic())
+    wait_for(lambda: refiner.status.frames_processed == 1, 60, 'the worker to answer a first frame')
+    assert refiner.status.state == 'collecting' and 'too few lines' in refiner.status.reason
+    frame = np.full((1080, 1920, 3), 7, np.uint8)
+    kept, skipped_seconds = [], []
+    start = time.monotonic()
+    while time.monotonic() - start < 3.0:  # 30 fps for 3 s
+        t = time.monotonic()
+        before = time.perf_counter()
+        if refiner.offer(frame, t):
+            kept.append(t)
+        else:
+            skipped_seconds.append(time.perf_counter() - before)
+        time.sleep(max(0.0, t + 1 / 30 - time.monotonic()))
+    gaps = np.diff(kept)
+    assert np.all(gaps >= interval), gaps  # never more than one per interval
+    assert len(kept) >= 3, kept  # and the interval is what limits them (the worker is quick here)
+    # a frame not kept costs a comparison, not a copy of its 6 MB (which takes about a millisecond)
+    assert np.median(skipped_seconds) < 1e-4, np.median(skipped_seconds)
+    wait_for(lambda: refiner.status.frames_processed == 1 + len(kept), 30, 'the kept frames to be processed')
+    assert refiner.status.frames_kept == 1 + len(kept)
+
+
+def test_a_failing_worker_gives_a_state_not_a_crash(refiner_factory):
+    frame = np.zeros((360, 640), np.uint8)
+    dead = refiner_factory(SPEC, command=[sys.executable, '-c', 'import sys; sys.exit(3)'])
+    wait_for(lambda: dead.status.state == 'failed', 20, 'the failure to be noticed')
+    assert 'exited (code 3)' in dead.status.reason
+    assert not dead.offer(frame, 100.0) and dead.take_result() is None
+    missing = refiner_factory(SPEC, command=['/nonexistent/refine-worker'])
+    assert missing.status.state == 'failed' and 'cannot start' in missing.status.reason
+    assert not missing.offer(frame, 0.0)
+    # killed while working (out of memory, a signal): failed, said why
+    killed = refiner_factory(SPEC, interval=0.0)
+    assert killed.offer(render(TRUE, 'street', seed=3)[0], 0.0)
+    time.sleep(0.5)
+    os.kill(killed.pid, signal.SIGKILL)
+    wait_for(lambda: killed.status.state == 'failed', 20, 'the kill to be noticed')
+    assert 'code -9' in killed.status.reason
+    assert not killed.offer(frame, 10.0)
+
+
+def test_a_frame_the_worker_cannot_use_is_reported_and_the_worker_goes_on(refiner_factory):
+    refiner = refiner_factory(SPEC, interval=0.0)
+    assert refiner.offer(np.zeros((300, 640), np.uint8), 0.0)  # not the spec's aspect ratio
+    wait_for(lambda: refiner.status.frames_processed == 1, 60, 'the first frame to be processed')
+    status = refiner.status
+    assert status.state == 'error' and 'aspect ratio' in status.reason, status
+    assert refiner.offer(np.zeros((360, 640), np.uint8), 1.0)  # the worker is still there
+    wait_for(lambda: refiner.status.frames_processed == 2, 30, 'the second frame to be processed')
+    assert refiner.status.state == 'collecting' and 'too few lines' in refiner.status.reason
+    refiner.stop()
+    assert refiner.status.state == 'stopped' and refiner._process.poll() is not None
+
+
+def test_line_evidence_accumulates_over_the_newest_frames(refiner_factory):
+    """Frames that each show a few of the room's lines (too few alone): the fit takes the curves
+    of the last max_frames frames, as detect_curves finds them frame by frame."""
+    room = render(TRUE, 'room', seed=1)[0]
+    zs = zero_shot_camera(SPEC, 640, 360)
+    everything = detect_curves(room, zs)
+    frames = []
+    for j in range(3):  # every 30th curve, a different set per frame, the rest of the image black
+        mask = np.zeros(room.shape, np.uint8)
+        for curve in everything[j::30]:
+            cv2.polylines(mask, [np.round(curve.points).astype(np.int32)], False, 1, 9)
+        frames.append(np.where(mask > 0, room, 0).astype(np.uint8))
+    counts = [len(detect_curves(f, zs)) for f in frames]
+    assert min(counts) >= 2 and sum(counts) < len(everything) / 4, counts  # a few lines each
+    refiner = refiner_factory(SPEC, interval=0.0, max_frames=2)
+    expected = [(counts[0], 1, 'collecting'), (counts[0] + counts[1], 2, 'insufficient'),
+                (counts[1] + counts[2], 2, 'insufficient')]
+    for i, (frame, (curves, used, state)) in enumerate(zip(frames, expected)):
+        assert refiner.offer(frame, float(i))
+        wait_for(lambda: refiner.status.frames_processed == i + 1, 60, f'frame {i + 1} to be processed')
+        status = refiner.status
+        assert (status.curves, status.frames_used, status.state) == (curves, used, state), status
+        assert status.reason and refiner.take_result() is None

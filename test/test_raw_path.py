@@ -1,0 +1,192 @@
+"""The node's serialized frame path (issue 14), seen from another process: it is the path in use
+(its start-up log and /diagnostics say so), what it publishes is what the message path publishes
+(ZEROSHOT_CALIB_FRAME_PATH=message, the previous node) byte for byte for every encoding, frame
+layout and header, and malformed serialized frames are skipped and counted on it."""
+import struct
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.qos import ReliabilityPolicy
+from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import CameraInfo, Image
+
+from ros_peer import diagnostics_value, domain_id, image_msg, peer, qos, start_node  # noqa: F401
+from zeroshot_calib_ros.core.ros_data.image_frames import ENCODINGS
+
+SPEC = ['-p', 'width:=64', '-p', 'height:=36', '-p', 'hfov:=118', '-p', 'vfov:=69', '-p', 'rectify:=true']
+RELIABLE = qos(ReliabilityPolicy.RELIABLE, depth=100)
+FRAME_IDS = ['', 'a', 'ab', 'abc', 'camera_optical', 'kamera_\u00e9']
+
+
+def stamp_of(raw: bytes) -> int:
+    sec, nanosec = struct.unpack_from('<iI', raw, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+def _pad(positions, offset, size):
+    """Padding positions that bring ``offset`` (in the buffer) to a multiple of ``size`` after
+    the 4-byte encapsulation header; returns the aligned offset."""
+    while (offset - 4) % size:
+        positions.add(offset)
+        offset += 1
+    return offset
+
+
+def padding_positions(msg) -> set:
+    """Where CDR alignment padding lies in a serialized Image / CameraInfo (Fast CDR leaves those
+    bytes as they were in memory, so two serializations of one message may differ there only)."""
+    positions = set()
+    offset = 4 + 8 + 4 + len(msg.header.frame_id.encode()) + 1
+    offset = _pad(positions, offset, 4) + 8  # height, width
+    if isinstance(msg, Image):
+        offset += 4 + len(msg.encoding.encode()) + 1 + 1  # encoding, is_bigendian
+        _pad(positions, offset, 4)
+    else:
+        offset += 4 + len(msg.distortion_model.encode()) + 1
+        offset = _pad(positions, offset, 4) + 4  # the length of d
+        _pad(positions, offset, 8)
+    return positions
+
+
+def assert_same_message(ours: bytes, theirs: bytes, msg_type, zero_padding=True):
+    """The same message, the same bytes outside the padding (ours zero there, as the serialized
+    path writes it, unless the message path serialized ours too)."""
+    msg = deserialize_message(ours, msg_type)
+    assert msg == deserialize_message(theirs, msg_type)
+    assert len(ours) == len(theirs)
+    padding = padding_positions(msg)
+    differ = [i for i in range(len(ours)) if ours[i] != theirs[i] and i not in padding]
+    assert not differ, f'{msg_type.__name__} bytes differ at {differ[:10]}'
+    if zero_padding:
+        assert all(ours[i] == 0 for i in padding)
+
+
+def texture(shape, dtype, seed):
+    rng = np.random.default_rng(seed)
+    if np.dtype(dtype).kind == 'f':
+        return (rng.random(shape) * 5 + 0.5).astype(dtype)
+    return rng.integers(0, np.iinfo(dtype).max, shape, dtype, endpoint=True)
+
+
+def test_serialized_path_is_in_use_and_publishes_the_message_paths_bytes(peer, start_node, monkeypatch):
+    """One frame of every encoding (textured; frame_ids of every padding case; a big-endian
+    16-bit frame; a padded step; a Bayer frame, which gets its CameraInfo only), plus two frames
+    the serialized reader hands to the deserializer (an XCDR2 encapsulation header, a frame_id
+    that is not UTF-8), go to a node on each path. Each image_rect and CameraInfo of the
+    serialized path is the message path's, deserialized and byte for byte."""
+    monkeypatch.setenv('ZEROSHOT_CALIB_FRAME_PATH', 'message')
+    previous = start_node('--ros-args', *SPEC, '-r', '__ns:=/msg', '-r', '__node:=zeroshot_calib_msg', name='msg')
+    monkeypatch.delenv('ZEROSHOT_CALIB_FRAME_PATH')
+    node = start_node('--ros-args', *SPEC)
+    outputs = {}
+    for topic in ('image_rect', 'camera_info', '/msg/image_rect', '/msg/camera_info'):
+        received = outputs[topic] = {}
+        peer.node.create_subscription(Image if 'image' in topic else CameraInfo, topic,
+                                      lambda raw, r=received: r.setdefault(stamp_of(raw), raw), RELIABLE, raw=True)
+    diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
+    pubs = [peer.image_publisher(RELIABLE, 'image_raw'), peer.image_publisher(RELIABLE, '/msg/image_raw')]
+
+    def send(raw):
+        for pub in pubs:
+            pub.publish(raw)
+
+    warm = 49_000_000_000
+    send(serialize_message(image_msg(texture((36, 64), np.uint8, 0), 'mono8', warm)))
+    peer.spin_until(lambda: warm in outputs['image_rect'] and warm in outputs['/msg/image_rect'],
+                    what='both nodes rectifying')
+    frames = []  # (serialized frame, rectified?)
+    for i, (encoding, (dtype, channels)) in enumerate(ENCODINGS.items()):
+        shape = (36, 64) if channels == 1 else (36, 64, channels)
+        msg = image_msg(texture(shape, dtype, i), encoding, 50_000_000_000 + i, frame_id=FRAME_IDS[i % 6])
+        frames.append((serialize_message(msg), True))
+    big = image_msg(texture((36, 64), np.uint16, 20).astype('>u2'), 'mono16', 50_000_000_100, frame_id='be')
+    big.is_bigendian = 1
+    padded = image_msg(np.pad(texture((36, 64, 3), np.uint8, 21), ((0, 0), (0, 3), (0, 0))), 'bgr8',
+                       50_000_000_101, frame_id='pad')
+    padded.width = 64  # step 201 > 192: rows carry 9 bytes after the pixels
+    bayer = image_msg(texture((36, 64), np.uint8, 22), 'bayer_rggb8', 50_000_000_102)
+    frames += [(serialize_message(big), True), (serialize_message(padded), True), (serialize_message(bayer), False)]
+    xcdr2 = bytearray(serialize_message(image_msg(texture((36, 64), np.uint8, 23), 'mono8', 50_000_000_103)))
+    xcdr2[1] = 0x07  # CDR2 little-endian: the same bytes for a type without 8-byte fields
+    not_utf8 = bytearray(serialize_message(image_msg(texture((36, 64), np.uint8, 24), 'mono8', 50_000_000_104,
+                                                     frame_id='ab')))
+    not_utf8[16:18] = b'\xff\xfe'
+    frames += [(bytes(xcdr2), True), (bytes(not_utf8), True)]
+    for raw, _ in frames:
+        send(raw)
+        peer.spin_for(0.05)
+    stamps = [stamp_of(raw) for raw, _ in frames]
+    rectified = [stamp_of(raw) for raw, rect in frames if rect]
+    peer.spin_until(lambda: all(set(rectified) <= set(outputs[t]) for t in ('image_rect', '/msg/image_rect')) and
+                    all(set(stamps) <= set(outputs[t]) for t in ('camera_info', '/msg/camera_info')),
+                    what='every output of both nodes')
+    handed_over = {50_000_000_103, 50_000_000_104}
+    for stamp in stamps:
+        assert_same_message(outputs['camera_info'][stamp], outputs['/msg/camera_info'][stamp], CameraInfo,
+                            stamp not in handed_over)
+    for stamp in rectified:
+        assert_same_message(outputs['image_rect'][stamp], outputs['/msg/image_rect'][stamp], Image,
+                            stamp not in handed_over)
+    assert 50_000_000_102 not in outputs['image_rect'] and 50_000_000_102 in outputs['camera_info']  # Bayer
+    be = deserialize_message(outputs['image_rect'][50_000_000_100], Image)
+    assert be.is_bigendian == 0 and be.step == 128  # converted to the host's order, rows packed
+    assert deserialize_message(outputs['camera_info'][50_000_000_104], CameraInfo).header.frame_id == '\ufffd\ufffd'
+
+    def status(name):
+        for msg in reversed(diagnostics):
+            for s in msg.status:
+                if s.name == f'{name}: calibration':
+                    return {kv.key: kv.value for kv in s.values}
+        return None
+
+    peer.spin_until(lambda: (status('zeroshot_calib') or {}).get('frames_via_message_path') == '2' and
+                    status('zeroshot_calib_msg') is not None, timeout=5, what='diagnostics of both nodes')
+    assert status('zeroshot_calib')['frame_path'] == 'serialized'
+    assert status('zeroshot_calib_msg')['frame_path'] == 'message (ZEROSHOT_CALIB_FRAME_PATH=message)'
+    assert 'frames_via_message_path' not in status('zeroshot_calib_msg')
+    assert '  frame path serialized: image_raw taken as CDR bytes' in node.log
+    assert '  frame path message: sensor_msgs/Image objects (ZEROSHOT_CALIB_FRAME_PATH=message)' in previous.log
+    assert 'frame taken on the message path: encapsulation 0007' in node.log
+    assert node.alive() and previous.alive() and 'Traceback' not in node.log + previous.log
+
+
+def test_malformed_serialized_frames_are_skipped_and_counted_on_the_serialized_path(peer, start_node):
+    """The malformed frames of test_node.py and test_reliability.py, and serialized ones no
+    sensor_msgs/Image could carry (data shorter than its length says, a frame_id longer than the
+    message, garbage after a valid encapsulation header), on the serialized path: each counted as
+    malformed (none handed to the deserializer), none rectified, none with a CameraInfo but the
+    16-bit frame whose step splits a pixel (its data is all there, as check_frame wants; only
+    rectification refuses it), the node alive, the next good frame rectified."""
+    node = start_node('--ros-args', *SPEC)
+    rects = peer.collect(Image, 'image_rect', RELIABLE)
+    infos = peer.collect(CameraInfo, 'camera_info', RELIABLE)
+    diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
+    pub = peer.image_publisher(RELIABLE)
+    good = texture((36, 64, 3), np.uint8, 1)
+    short = image_msg(good, 'bgr8', 60)
+    short.data = short.data[:-10]
+    bad_step = image_msg(good, 'bgr8', 61)
+    bad_step.step = 100
+    empty = image_msg(np.zeros((0, 0), np.uint8), 'mono8', 62)
+    odd_step = image_msg(np.zeros((36, 64), np.uint16), 'mono16', 63)
+    odd_step.step, odd_step.data = 129, bytes(129 * 36)
+    huge = image_msg(np.zeros((9, 16), np.uint8), 'mono8', 64)
+    huge.width, huge.height, huge.step = 64000, 36000, 64000
+    frames = [serialize_message(m) for m in (short, bad_step, empty, odd_step, huge)]
+    truncated = serialize_message(image_msg(good, 'bgr8', 65))[:-100]  # data length says 100 bytes more
+    long_frame_id = bytearray(serialize_message(image_msg(good, 'bgr8', 66)))
+    long_frame_id[12:16] = struct.pack('<I', len(long_frame_id))
+    garbage = b'\x00\x01\x00\x00' + struct.pack('<iI', 0, 67) + np.random.default_rng(2).bytes(300)
+    frames += [truncated, bytes(long_frame_id), garbage]
+    for raw in frames:
+        pub.publish(raw)
+        peer.spin_for(0.05)
+    pub.publish(serialize_message(image_msg(good, 'bgr8', 68)))
+    peer.spin_until(lambda: any(m.header.stamp.nanosec == 68 for m in rects), what='the good frame rectified')
+    peer.spin_until(lambda: diagnostics_value(diagnostics, 'frames_skipped_malformed') == str(len(frames)),
+                    what='every malformed frame counted')
+    assert diagnostics_value(diagnostics, 'frames_via_message_path') is None
+    assert diagnostics_value(diagnostics, 'frame_path') == 'serialized'
+    assert {m.header.stamp.nanosec for m in infos} & set(range(60, 68)) == {63}
+    assert not {m.header.stamp.nanosec for m in rects} & set(range(60, 68))
+    assert node.alive() and 'Traceback' not in node.log

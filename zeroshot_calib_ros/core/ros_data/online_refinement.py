@@ -1,0 +1,425 @@
+"""Refinement of the calibration in force from the frames a camera streams (the node's ``refine``).
+
+``OnlineRefiner(spec, interval)`` is offered frames (numpy images and a time) from the frame
+callback; it keeps at most one every ``interval`` seconds, and only while its worker is idle.
+The check is a comparison of two numbers; a frame that is not kept is not copied (a kept one is
+copied unless the caller says its buffer is immutable, as rclpy's serialized ``bytes`` are).
+
+Line detection (``core.lines.detect.detect_curves``) and the fit with its gate
+(``core.estimation.refine.refine_camera``) run in a **worker process** (``python -c`` running
+``worker_main``) at nice ``WORKER_NICE`` and SCHED_IDLE with one OpenCV / BLAS thread: in the node's process
+even a low-priority thread would hold the GIL for most of a fit (tens of seconds of numpy and
+SciPy at 1080p) and the executor thread would lose frames. Frames go to the worker through its
+stdin (written by a sender thread, so the caller never waits on the pipe), results come back on
+its stdout (read by a reader thread). The worker accumulates the curves of the last
+``max_frames`` kept frames, detects with the current estimate (zero-shot's, or the camera given
+as ``initial``), and after every frame fits all of them; the gate of ``refine_camera`` (zero-shot
+the reference, whatever ``initial`` is) decides. The first accepted camera is the result
+(``take_result``), and the refiner then keeps no more frames.
+
+States (``status.state``): ``collecting`` (the gate refused so far, fewer than ``max_frames``
+frames seen), ``insufficient`` (``max_frames`` frames seen and still refused: the window slides
+on, newest frames replacing the oldest), ``refined`` (accepted), ``error`` (the last frame
+failed in the worker, which goes on), ``failed`` (the worker is gone: no more refinement) and
+``stopped``. ``reason`` says why, in the gate's words.
+
+ROS-free: the node (``zeroshot_calib_ros.ros.node``) owns one while ``refine`` is true.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import pickle
+import struct
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..estimation.terms import FOV_TOLERANCE_DEG
+from ..lens.models import KannalaBrandtCamera
+from ..zeroshot.spec import CameraSpec
+from .calibration_file import CameraCalibration
+from .rectify import new_camera_matrix
+
+DEFAULT_INTERVAL = 2.0
+"""Seconds between kept frames (the node's ``refine_interval``)."""
+MAX_FRAMES = 8
+"""Kept frames whose curves the fit uses (the newest)."""
+WORKER_NICE = 19
+"""Niceness of the worker process (with SCHED_IDLE where Linux has it); ZEROSHOT_CALIB_REFINE_NICE
+overrides it (0..19; below 19 the normal policy)."""
+NICE_ENV = 'ZEROSHOT_CALIB_REFINE_NICE'
+STATES = ('collecting', 'insufficient', 'refined', 'error', 'failed', 'stopped')
+_LENGTH = struct.Struct('>Q')
+
+
+@dataclass
+class RefineStatus:
+    """What the refiner knows now (the node's /diagnostics ``refine_*`` values)."""
+
+    state: str = 'collecting'
+    reason: str = 'no frame yet'
+    frames_kept: int = 0
+    frames_processed: int = 0
+    frames_used: int = 0
+    """Frames whose curves the last fit had (at most ``max_frames``)."""
+    lines: int = 0
+    """Curves the last fit used (straight under one camera)."""
+    curves: int = 0
+    """Curves detected in the frames of the last fit."""
+    coverage: float = 0.0
+    residual_px_before: Optional[float] = None
+    """RMS of the used curves' points from their lines under zero-shot (px)."""
+    residual_px: Optional[float] = None
+    """The same under the fitted camera (px)."""
+    uncertainty_px: Optional[float] = None
+    """Of the camera the gate chose (the refined one when accepted)."""
+    zero_shot_uncertainty_px: Optional[float] = None
+    principal_point_shift_px: float = 0.0
+    seconds: float = 0.0
+    """Worker time (detection + fit) of the last frame."""
+
+    def values(self) -> dict:
+        """Display strings per field (for /diagnostics)."""
+        def text(v):
+            if v is None:
+                return ''
+            return f'{v:.4g}' if isinstance(v, float) else str(v)
+        return {k: text(v) for k, v in dataclasses.asdict(self).items()}
+
+
+@dataclass
+class RefinedCamera:
+    """An accepted refinement: the camera (at the size of the frames) and the numbers behind it."""
+
+    camera: KannalaBrandtCamera
+    status: RefineStatus
+    initial: Optional[KannalaBrandtCamera] = field(default=None, repr=False)
+
+
+def refined_calibration(camera: KannalaBrandtCamera, width: int, height: int, balance: float = 0.0,
+                        fov_scale: float = 1.0, camera_name: str = 'camera') -> CameraCalibration:
+    """The ROS record (``equidistant``, P chosen by ``balance`` and ``fov_scale``) of a refined
+    camera, at ``width`` x ``height`` (the calibration's size; the camera is scaled to it)."""
+    if (camera.width, camera.height) != (width, height):
+        camera = camera.scaled(width, height)
+    P = np.hstack([new_camera_matrix(camera, balance, fov_scale), np.zeros((3, 1))])
+    return CameraCalibration(width, height, camera.K, 'equidistant', camera.D, np.eye(3), P, camera_name)
+
+
+def _camera_tuple(camera: Optional[KannalaBrandtCamera]):
+    if camera is None:
+        return None
+    return (camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height, list(camera.D))
+
+
+def _camera_from(values) -> Optional[KannalaBrandtCamera]:
+    return None if values is None else KannalaBrandtCamera(*values)
+
+
+def _send(stream, message: dict, payload=None):
+    data = pickle.dumps(message, protocol=4)
+    stream.write(_LENGTH.pack(len(data)))
+    stream.write(data)
+    if payload is not None:
+        stream.write(payload)  # a large write goes to os.write directly, without the GIL
+    stream.flush()
+
+
+def _read_exactly(stream, n: int) -> Optional[bytearray]:
+    buffer = bytearray(n)
+    view = memoryview(buffer)
+    got = 0
+    while got < n:
+        k = stream.readinto(view[got:])
+        if not k:
+            return None
+        got += k
+    return buffer
+
+
+def _receive(stream) -> Optional[dict]:
+    head = _read_exactly(stream, _LENGTH.size)
+    if head is None:
+        return None
+    data = _read_exactly(stream, _LENGTH.unpack(head)[0])
+    return None if data is None else pickle.loads(bytes(data))
+
+
+def worker_command() -> list:
+    return [sys.executable, '-c', 'from zeroshot_calib_ros.core.ros_data.online_refinement import worker_main; '
+            'worker_main()']
+
+
+class OnlineRefiner:
+    """Samples frames and refines the camera of ``spec`` in a worker process (module docstring).
+
+    ``initial``: the camera to start from (an earlier refinement); zero-shot's otherwise.
+    ``command``: the worker's argv (tests give a broken one)."""
+
+    def __init__(self, spec: CameraSpec, interval: float = DEFAULT_INTERVAL,
+                 initial: Optional[KannalaBrandtCamera] = None, fov_tolerance_deg: float = FOV_TOLERANCE_DEG,
+                 max_frames: int = MAX_FRAMES, command: Optional[Sequence[str]] = None):
+        self.spec = spec
+        self.interval = float(interval)
+        self.initial = initial
+        self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
+        self._status = RefineStatus()
+        self._result: Optional[RefinedCamera] = None
+        self._busy = False  # a kept frame is on its way to or in the worker
+        self._last_kept: Optional[float] = None
+        self._slot = None  # (array, time) the sender writes next
+        self._closed = False
+        self._done = False  # refined, failed or stopped: no more frames
+        env = dict(os.environ)
+        package_root = str(Path(__file__).resolve().parents[3])
+        env['PYTHONPATH'] = package_root + (os.pathsep + env['PYTHONPATH'] if env.get('PYTHONPATH') else '')
+        for name in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS'):
+            env.setdefault(name, '1')
+        try:
+            self._process = subprocess.Popen(list(command) if command else worker_command(), stdin=subprocess.PIPE,
+                                             stdout=subprocess.PIPE, env=env, close_fds=True)
+        except OSError as exc:
+            self._process = None
+            self._closed = self._done = True
+            self._status.state, self._status.reason = 'failed', f'cannot start the refinement worker: {exc}'
+            return
+        _lower_priority(self._process.pid)  # at once, before the worker imports anything
+        self._start_message = {'kind': 'start', 'spec': spec, 'fov_tolerance_deg': float(fov_tolerance_deg),
+                               'initial': _camera_tuple(initial), 'max_frames': int(max_frames)}
+        self._sender = threading.Thread(target=self._send_loop, name='refine_sender', daemon=True)
+        self._reader = threading.Thread(target=self._read_loop, name='refine_reader', daemon=True)
+        self._sender.start()
+        self._reader.start()
+
+    # --- the caller's side (the frame callback) --------------------------------------------
+    def due(self, t: float) -> bool:
+        """Whether a frame at time ``t`` (seconds, any monotonic clock) would be kept."""
+        return not (self._done or self._busy) and (self._last_kept is None or t - self._last_kept >= self.interval)
+
+    def offer(self, image: np.ndarray, t: float, copy: bool = True) -> bool:
+        """Keep ``image`` (grey or colour, 8 or 16 bit) if due; returns whether it was kept.
+        ``copy=False``: the buffer is immutable (it is then held, not copied)."""
+        if not self.due(t):
+            return False
+        array = np.array(image, copy=True, order='C') if copy else np.ascontiguousarray(image)
+        with self._wake:
+            if self._done:
+                return False
+            self._busy = True
+            self._last_kept = t
+            self._slot = (array, t)
+            self._status.frames_kept += 1
+            self._wake.notify()
+        return True
+
+    @property
+    def status(self) -> RefineStatus:
+        with self._lock:
+            return dataclasses.replace(self._status)
+
+    def take_result(self) -> Optional[RefinedCamera]:
+        """The accepted refinement, once (None before, and after it was taken)."""
+        with self._lock:
+            result, self._result = self._result, None
+            return result
+
+    def stop(self, reason: str = 'stopped', timeout: float = 2.0):
+        """End the worker (the state becomes ``stopped`` unless it was refined or failed)."""
+        with self._wake:
+            if self._closed:
+                return
+            self._closed = self._done = True
+            if self._status.state not in ('refined', 'failed'):
+                self._status.state, self._status.reason = 'stopped', reason
+            self._wake.notify()
+        if self._process is None:
+            return
+        try:
+            self._process.stdin.close()
+        except (OSError, ValueError):
+            pass
+        try:
+            self._process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait()
+        self._sender.join(timeout)
+        self._reader.join(timeout)
+
+    @property
+    def pid(self) -> Optional[int]:
+        return None if self._process is None else self._process.pid
+
+    # --- threads ------------------------------------------------------------------------
+    def _fail(self, reason: str):
+        with self._wake:
+            self._done = True
+            self._busy = False
+            if not self._closed and self._status.state != 'refined':
+                self._status.state, self._status.reason = 'failed', reason
+            self._wake.notify()
+
+    def _exit_text(self) -> str:
+        try:
+            code = self._process.wait(2.0)
+        except subprocess.TimeoutExpired:
+            return 'the worker stopped answering'
+        return f'the refinement worker exited (code {code})'
+
+    def _send_loop(self):
+        stream = self._process.stdin
+        try:
+            _send(stream, self._start_message)
+            while True:
+                with self._wake:
+                    while self._slot is None and not self._done:
+                        self._wake.wait()
+                    if self._done:  # refined, failed or stopped: the worker may go
+                        break
+                    (array, t), self._slot = self._slot, None
+                header = {'kind': 'frame', 't': t, 'shape': array.shape, 'dtype': array.dtype.str,
+                          'nbytes': array.nbytes}
+                _send(stream, header, memoryview(array).cast('B'))
+                del array
+        except (OSError, ValueError) as exc:  # the worker is gone
+            if not self._closed:
+                self._fail(f'{self._exit_text()}: {exc}')
+            return
+        try:
+            stream.close()  # end of input: the worker exits
+        except (OSError, ValueError):
+            pass
+
+    def _read_loop(self):
+        stream = self._process.stdout
+        while True:
+            try:
+                message = _receive(stream)
+            except Exception as exc:  # noqa: BLE001 (garbage on the pipe: the worker is broken)
+                message = None
+                why = f'unreadable answer from the worker: {exc!r}'
+            else:
+                why = None
+            if message is None:
+                if not self._closed:
+                    self._fail(why or self._exit_text())
+                return
+            status = RefineStatus(**message['status'])
+            with self._wake:
+                status.frames_kept = self._status.frames_kept
+                self._status = status
+                if message.get('camera') is not None:
+                    self._result = RefinedCamera(_camera_from(message['camera']), dataclasses.replace(status),
+                                                 self.initial)
+                    self._done = True
+                    self._wake.notify()  # the sender ends the worker's input: it exits
+                self._busy = False
+
+
+# --- the worker process ---------------------------------------------------------------------
+
+def _lower_priority(pid: int):
+    """Niceness WORKER_NICE (or ZEROSHOT_CALIB_REFINE_NICE) for process ``pid``, and at 19 Linux's
+    SCHED_IDLE policy: it then runs only on a core nothing else wants (a waking stream thread
+    preempts it at once)."""
+    try:
+        nice = max(0, min(19, int(os.environ.get(NICE_ENV, WORKER_NICE))))
+    except ValueError:
+        nice = WORKER_NICE
+    try:
+        os.setpriority(os.PRIO_PROCESS, pid, nice)
+    except (AttributeError, OSError):
+        pass
+    if nice == 19 and hasattr(os, 'SCHED_IDLE'):
+        try:
+            os.sched_setscheduler(pid, os.SCHED_IDLE, os.sched_param(0))
+        except OSError:
+            pass
+
+
+class _Worker:
+    """The worker's state: the spec, the current estimate and the curves of the newest frames."""
+
+    def __init__(self, start: dict):
+        from ..estimation.refine import zero_shot_camera  # noqa: F401 (imports SciPy once, here)
+        from ..zeroshot.solver import solve_zero_shot
+        self.spec: CameraSpec = start['spec']
+        self.tolerance = start['fov_tolerance_deg']
+        self.initial = _camera_from(start['initial'])
+        self.max_frames = max(1, int(start['max_frames']))
+        self.solution = solve_zero_shot(self.spec, 'auto')
+        self.frames = []  # curves of each kept frame, oldest first
+        self.count = 0
+        self.size = None
+        self.camera = None  # the estimate detections use
+
+    def frame(self, image: np.ndarray) -> dict:
+        from ..estimation.refine import refine_camera, zero_shot_camera
+        from ..lines.detect import detect_curves
+        start = time.monotonic()
+        height, width = image.shape[:2]
+        if self.size is not None and (width, height) != self.size:
+            raise ValueError(f'the frame is {width}x{height}, the frames before were {self.size[0]}x{self.size[1]}: '
+                             'one size per refinement')
+        camera = self.camera
+        if camera is None:
+            camera = (self.initial.scaled(width, height) if self.initial is not None else
+                      zero_shot_camera(self.spec, width, height, self.solution))
+        curves = detect_curves(image, camera, image_id=self.count + 1)
+        frames = (self.frames + [curves])[-self.max_frames:]
+        every = [c for frame in frames for c in frame]
+        result = refine_camera(self.spec, every, width, height, self.tolerance,
+                               initial=camera if self.initial is not None else None, solution=self.solution)
+        self.camera, self.size, self.frames = camera, (width, height), frames  # the frame is evidence now
+        self.count += 1
+        if result.accepted:
+            state = 'refined'
+        else:
+            state = 'insufficient' if len(self.frames) >= self.max_frames else 'collecting'
+        status = RefineStatus(
+            state, result.reason, 0, self.count, len(self.frames), result.lines_used, len(every),
+            float(result.coverage), result.line_residual_px_before, result.line_residual_px_after,
+            result.uncertainty_px, result.zero_shot_uncertainty_px, float(result.principal_point_shift_px),
+            time.monotonic() - start)
+        return {'status': dataclasses.asdict(status),
+                'camera': _camera_tuple(result.camera) if result.accepted else None}
+
+
+def worker_main():
+    """The worker process: reads 'start' then frames on stdin, answers each frame on stdout."""
+    out = os.fdopen(os.dup(1), 'wb')
+    os.dup2(2, 1)  # whatever a library prints goes to stderr, never into the answers
+    sys.stdout = sys.stderr
+    stdin = sys.stdin.buffer
+    import cv2
+    cv2.setNumThreads(1)
+    start = _receive(stdin)
+    if start is None or start.get('kind') != 'start':
+        return
+    worker = _Worker(start)
+    processed = 0
+    while True:
+        header = _receive(stdin)
+        if header is None:
+            return
+        data = _read_exactly(stdin, header['nbytes'])
+        if data is None:
+            return
+        image = np.frombuffer(data, dtype=np.dtype(header['dtype'])).reshape(header['shape'])
+        processed += 1
+        try:
+            answer = worker.frame(image)
+        except Exception as exc:  # noqa: BLE001 (one bad frame: said, and the worker goes on)
+            status = RefineStatus('error', f'frame {processed}: {type(exc).__name__}: {exc}', 0, processed)
+            answer = {'status': dataclasses.asdict(status), 'camera': None}
+        answer['status']['frames_processed'] = processed
+        del image, data
+        _send(out, answer)
