@@ -839,7 +839,7 @@ def test_performance_figures_are_the_results_files():
     section = readme_section('Performance')
     results = (RESULTS / 'rectify_throughput.md').read_text()
     by_frame = {(r[0], r[1]): r for r in markdown_rows(results) if len(r) == 15}
-    readme_rows = markdown_rows(section)[1:]
+    readme_rows = markdown_rows(section.split('### Serialized frame path')[0])[1:]
     assert len(readme_rows) == 6
     columns = {2: 2, 3: 3, 4: 4, 5: 6, 6: 8, 7: 9, 8: 10}  # README column -> results column
     for cells in readme_rows:
@@ -880,6 +880,40 @@ def test_performance_figures_are_the_results_files():
     for figure in ('18,000 frames sent, 17,994 rectified', 'p50 27-29 ms, p99 36-65 ms', 'p50 28.2 ms, p99 206 ms',
                    '371.2 MiB after minute 1 (slope +0.0003 MiB/min)'):
         assert figure in ' '.join(section.split()), figure
+
+
+def test_serialized_path_figures_are_the_results_files():
+    """README "Serialized frame path (issue 14)": the table is `benchmarks/results/serialized_path.md`
+    (benchmarks/rectify_throughput.py with the previous node as baseline, same run), the sentences
+    under it follow from it, and the start-up figures are `benchmarks/results/first_camera_info.md`
+    (benchmarks/first_camera_info.py)."""
+    section = readme_section('Serialized frame path')
+    results = (RESULTS / 'serialized_path.md').read_text()
+    rows = markdown_rows(results)
+    throughput = {(r[0], r[1]): r for r in rows if len(r) == 15}
+    compare = {(r[0], r[1]): r for r in rows if len(r) == 8}
+    readme_rows = markdown_rows(section)[1:]
+    assert [tuple(r[:2]) for r in readme_rows] == [('1920x1080', 'bgr8'), ('1920x1080', 'mono8')]
+    for cells in readme_rows:
+        r, c = throughput[tuple(cells[:2])], compare[tuple(cells[:2])]
+        expected = [r[2].split('/')[0], r[3], r[4], r[6].split('/')[0], r[8], r[9], r[10], r[14].split('/')[1],
+                    c[4], r[12].split()[0]]
+        assert [x.strip() for x in cells[2:]] == [x.strip() for x in expected], cells
+    bgr, mono = throughput[('1920x1080', 'bgr8')], throughput[('1920x1080', 'mono8')]
+    text = ' '.join(section.split())
+    # "At 1080p bgr8 the rate target and the 1.15x target are met and latency is 2.7 ms over"
+    assert bgr[11] == 'yes' and compare[('1920x1080', 'bgr8')][7] == 'yes'
+    assert f"latency is {float(bgr[4]) - float(bgr[6].split('/')[0]):.1f} ms over its target" in text
+    # "at mono8 neither rate target is met (1.05x) and latency is 1.2 ms over ... (met ... 17.70 ms)"
+    assert mono[11] == '**no**' and compare[('1920x1080', 'mono8')][7] == '**no**'
+    assert f"latency is {float(mono[4]) - float(mono[6].split('/')[0]):.1f} ms over the back-to-back" in text
+    assert mono[7].split('/')[1].strip() == 'yes' and mono[6].split('/')[1].strip() + ' ms' in text
+    first = (RESULTS / 'first_camera_info.md').read_text().split('## With config/fastdds_shm.xml as committed')[1]
+    median = re.search(r'median: node ready (\d\.\d+) s, first CameraInfo (\d\.\d+) s; '
+                       r'first CameraInfo <= 0.6 s in (\d+) of (\d+) trials', first)
+    ready, info, within, trials = median.groups()
+    assert f'a median {float(ready):.2f} s after its process starts' in text
+    assert f'a median {float(info):.2f} s after ({within} of {trials} start-ups within 0.6 s)' in text
 
 
 @pytest.mark.parametrize('vfov, a, fit_px', [(112.5, 1.0, 1e-12), (110, 1.04, 0.011), (115, 0.961, 0.0055),

@@ -46,6 +46,8 @@ def _remez(A: np.ndarray, b: np.ndarray, iterations: int = 200):
     does not converge (module docstring). Rows with an all-zero A and b (theta = 0) carry no
     error and are never references."""
     n, m = A.shape
+    if not np.any(np.abs(b) > 1e-15):  # the exact model is the ROS model's own (a pinhole): D = 0
+        return np.zeros(m)
     scale = np.max(np.abs(A), axis=0)
     if not np.all(scale > 0):
         return None
