@@ -17,12 +17,14 @@ May import ``core.lens``, ``core.zeroshot``, ``core.lines`` and ``core.checkerbo
 - ``problem.py``: ``Problem`` stacks and whitens the terms, applies each term's robust loss and
   solves with ``scipy.optimize.least_squares``; it knows nothing of what the terms mean.
 - ``fit.py``: the robust MAP fit over line evidence: outlier curves rejected by their RMS, the
-  model order chosen by BIC.
+  model order chosen by an information criterion.
 - ``uncertainty.py``: covariance from the whitened Jacobian at the solution, propagated to the
   RMS over the image of the 1-sigma pixel displacement; ``zero_shot_uncertainty``; explicitly
   ``None`` with the reason when it cannot be estimated.
 - ``refine.py``: ``refine_camera`` (the fit plus the quality gate, returning a ``Refinement``)
   and ``refine_from_images`` (detection and fit in a loop).
+- ``board_fit.py``: ``fit_board``: the MAP over chessboard corners (``core.checkerboard.corner_term.
+  CornerTerm``), the spec FOVs and the priors; ``calibrate`` with the spec as evidence.
 
 How to add an evidence type: a class with ``name``, ``residuals(camera)`` (1-D, unwhitened, in
 its natural unit), ``sigma`` (scalar or per residual, same unit), ``loss`` (None, 'soft_l1' or
