@@ -882,6 +882,18 @@ def test_performance_figures_are_the_results_files():
         assert figure in ' '.join(section.split()), figure
 
 
+def test_refine_node_figures_are_the_results_file():
+    """README "Refining while streaming": the frames lost with refine on and off and the times to the
+    refined CameraInfo are `benchmarks/results/refine_node.md` (benchmarks/refine_node.py)."""
+    text = ' '.join(readme_section('Refining while streaming').split())
+    results = (RESULTS / 'refine_node.md').read_text()
+    lost = re.search(r'Total image_rect lost: off (\d+) of (\d+), on (\d+) of (\d+)', results).groups()
+    off, sent_off, on, sent_on = (int(x) for x in lost)
+    assert f'{on} of {sent_on:,} frames lost with refine on and {off} of {sent_off:,} with it off' in text
+    adopted = re.findall(r'\| ([\d.]+) s \(fx', results)
+    assert adopted and f"arrived {' s and '.join(adopted)} s into the stream" in text
+
+
 def test_serialized_path_figures_are_the_results_files():
     """README "Serialized frame path (issue 14)": the table is `benchmarks/results/serialized_path.md`
     (benchmarks/rectify_throughput.py with the previous node as baseline, same run), the sentences
@@ -908,6 +920,16 @@ def test_serialized_path_figures_are_the_results_files():
     assert mono[11] == '**no**' and compare[('1920x1080', 'mono8')][7] == '**no**'
     assert f"latency is {float(mono[4]) - float(mono[6].split('/')[0]):.1f} ms over the back-to-back" in text
     assert mono[7].split('/')[1].strip() == 'yes' and mono[6].split('/')[1].strip() + ' ms' in text
+    other = markdown_rows((RESULTS / 'serialized_path_720p_4k.md').read_text())
+    others = {(r[0], r[1]): r for r in other if len(r) == 15}
+    ratios = {(r[0], r[1]): r[4] for r in other if len(r) == 8}
+    hd_bgr, hd_mono, uhd_bgr = others[('1280x720', 'bgr8')], others[('1280x720', 'mono8')], others[('3840x2160', 'bgr8')]
+    assert hd_bgr[7] == 'yes / yes' and hd_bgr[11] == 'yes' and f"(1.10x the previous node)" in text
+    assert ratios[('1280x720', 'bgr8')] == '1.10x' and ratios[('1280x720', 'mono8')] == '1.06x'
+    assert hd_mono[11] == '**no**' and f'({round(float(hd_mono[9]))} vs {round(float(hd_mono[10]))} fps, 1.06x)' in text
+    assert uhd_bgr[12].endswith('(186/300)') and '186 of 300 bgr8 frames dropped' in text
+    assert ratios[('3840x2160', 'bgr8')] == '0.85x' and ratios[('3840x2160', 'mono8')] == '0.95x'
+    assert '(0.85x bgr8, 0.95x mono8)' in text
     first = (RESULTS / 'first_camera_info.md').read_text().split('## With config/fastdds_shm.xml as committed')[1]
     median = re.search(r'median: node ready (\d\.\d+) s, first CameraInfo (\d\.\d+) s; '
                        r'first CameraInfo <= 0.6 s in (\d+) of (\d+) trials', first)
