@@ -1105,3 +1105,13 @@ def segment_contrast(image, camera, segments, offset_px=1.5):
         d = diff[(seg == i) & ok]
         out[i] = float(np.median(d)) if d.size else 0.0
     return out
+
+
+def dense_rms(camera, truth, grid=(33, 19)) -> float:
+    """RMS pixel distance, over a grid of the image, between the truth's pixels and where
+    ``camera`` puts the truth's rays (no rotation: the principal point's error counts too)."""
+    u, v = np.meshgrid(np.linspace(0, truth.width - 1, grid[0]), np.linspace(0, truth.height - 1, grid[1]))
+    pixels = np.stack([u.ravel(), v.ravel()], 1)
+    rays = truth.unproject(pixels)
+    ok = np.isfinite(rays).all(1)
+    return float(np.sqrt(np.mean(np.sum((camera.project(rays[ok]) - pixels[ok]) ** 2, 1))))

@@ -13,7 +13,7 @@ from sensor_msgs.msg import CameraInfo
 from sensor_msgs.srv import SetCameraInfo
 
 from ros_peer import LATCHED, diagnostics_value, domain_id, image_msg, peer, qos, start_node  # noqa: F401
-from scenes import render
+from scenes import dense_rms, render
 from zeroshot_calib_ros.core import CameraCalibration
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
 
@@ -28,14 +28,6 @@ def frames():
     return [render(TRUE, scene, seed=seed)[0] for scene, seed in (('room', 1), ('corridor', 2))]
 
 
-def dense_rms(camera, truth=TRUE, grid=(33, 19)):
-    """RMS over a grid of the image of the distance between the truth's pixels and where
-    ``camera`` projects the truth's rays."""
-    u, v = np.meshgrid(np.linspace(0, truth.width - 1, grid[0]), np.linspace(0, truth.height - 1, grid[1]))
-    pixels = np.stack([u.ravel(), v.ravel()], 1)
-    rays = truth.unproject(pixels)
-    ok = np.isfinite(rays).all(1)
-    return float(np.sqrt(np.mean(np.sum((camera.project(rays[ok]) - pixels[ok]) ** 2, 1))))
 
 
 def camera_of(info: CameraInfo) -> KannalaBrandtCamera:
@@ -76,8 +68,8 @@ def test_refine_adopts_a_refined_calibration_while_frames_stream(peer, start_nod
         float(diagnostics_value(diagnostics, 'refine_zero_shot_uncertainty_px'))
     refined = camera_of(infos[-1])
     assert abs(refined.cx - TRUE.cx) < 2 and abs(refined.cy - TRUE.cy) < 2  # zero-shot: (320, 180)
-    assert dense_rms(refined) < 1.5 and dense_rms(refined) < 0.25 * dense_rms(zero_shot), \
-        (dense_rms(refined), dense_rms(zero_shot))
+    error, zero_shot_error = dense_rms(refined, TRUE), dense_rms(zero_shot, TRUE)
+    assert error < 1.5 and error < 0.25 * zero_shot_error, (error, zero_shot_error)
     saved = CameraCalibration.load(str(url))  # where set_camera_info would have saved it
     np.testing.assert_allclose(saved.K.ravel(), infos[-1].k, rtol=1e-9)
     np.testing.assert_allclose(saved.D.ravel(), infos[-1].d, rtol=1e-9)

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from scenes import render
+from scenes import dense_rms, render
 from zeroshot_calib_ros.core import CameraSpec
 from zeroshot_calib_ros.core.estimation.refine import zero_shot_camera
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
@@ -22,14 +22,6 @@ TRUE = KannalaBrandtCamera(210.0, 210.0, 327.0, 176.0, 640, 360, np.array([0.02,
 SPEC = CameraSpec(640, 360, hfov=172, vfov=97, dfov=198)  # TRUE's FOVs rounded to 1 degree
 
 
-def dense_rms(camera, truth=TRUE, grid=(33, 19)):
-    """RMS pixel distance over a grid of the image between the truth's pixels and where ``camera``
-    puts the truth's rays (no rotation: the principal point's error counts)."""
-    u, v = np.meshgrid(np.linspace(0, truth.width - 1, grid[0]), np.linspace(0, truth.height - 1, grid[1]))
-    pixels = np.stack([u.ravel(), v.ravel()], 1)
-    rays = truth.unproject(pixels)
-    ok = np.isfinite(rays).all(1)
-    return float(np.sqrt(np.mean(np.sum((camera.project(rays[ok]) - pixels[ok]) ** 2, 1))))
 
 
 def wait_for(predicate, timeout, what):
@@ -74,7 +66,8 @@ def test_streamed_frames_give_a_camera_closer_to_the_truth_than_zero_shot(refine
     assert status.state == 'refined' and status.reason.startswith('accepted'), status
     assert status.lines >= 8 and 0 < status.coverage <= 1 and status.uncertainty_px < status.zero_shot_uncertainty_px
     zs = zero_shot_camera(SPEC, 640, 360)
-    assert dense_rms(result.camera) < 1.5 and dense_rms(result.camera) < 0.25 * dense_rms(zs)  # zero-shot: 8 px
+    error = dense_rms(result.camera, TRUE)
+    assert error < 1.5 and error < 0.25 * dense_rms(zs, TRUE)  # zero-shot: 8 px
     assert abs(result.camera.cx - TRUE.cx) < 2 and abs(result.camera.cy - TRUE.cy) < 2  # zero-shot: 8 px off
     # the ROS record of the refined camera at another size of the same aspect: scaled intrinsics
     record = refined_calibration(result.camera, 1280, 720, camera_name='cam')

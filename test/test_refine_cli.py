@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from scenes import render
+from scenes import dense_rms, render
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import CameraCalibration, CameraSpec, solve_zero_shot
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
@@ -43,14 +43,6 @@ def run(capsys, *argv):
     return status, out, err
 
 
-def dense_rms(camera, truth=TRUE, grid=(33, 19)):
-    """RMS pixel distance, over a grid of the image, between the truth's pixels and where the
-    estimate puts the truth's rays (no rotation: the principal point's error counts too)."""
-    u, v = np.meshgrid(np.linspace(0, truth.width - 1, grid[0]), np.linspace(0, truth.height - 1, grid[1]))
-    pixels = np.stack([u.ravel(), v.ravel()], 1)
-    rays = truth.unproject(pixels)
-    ok = np.isfinite(rays).all(1)
-    return float(np.sqrt(np.mean(np.sum((camera.project(rays[ok]) - pixels[ok]) ** 2, 1))))
 
 
 def test_refine_recovers_the_true_camera_and_writes_it(views, capsys, tmp_path):
@@ -71,7 +63,7 @@ def test_refine_recovers_the_true_camera_and_writes_it(views, capsys, tmp_path):
     zero_shot = solve_zero_shot(CameraSpec(640, 360, hfov=172, vfov=97, dfov=198)).camera
     assert abs(camera.cx - TRUE.cx) < 2 and abs(camera.cy - TRUE.cy) < 2  # zero-shot: the centre, 8 px off
     assert record['f'] == pytest.approx(TRUE.fx, rel=0.01)
-    assert dense_rms(camera) < 1.0 < dense_rms(zero_shot)
+    assert dense_rms(camera, TRUE) < 1.0 < dense_rms(zero_shot, TRUE)
     assert 0 < record['uncertainty_px'] < 5
     picture = cv2.imread(str(debug))
     assert picture.shape[:2] == (360 + 180, 640)

@@ -503,6 +503,27 @@ def _refine_spec(args, width, height):
     return spec_with_preset(args.preset, width=width, height=height, **fields)
 
 
+def _kannala_brandt_record(camera, spec, model, args, distortion_model='equidistant', D=None, fit_error=0.0,
+                           root_found=True):
+    """`solve --json`'s record of a Kannala-Brandt camera at the spec's size (refined or calibrated)
+    and its CameraCalibration; ``D`` / ``fit_error``: of the ROS model when it is not equidistant
+    (an equidistant D is the camera's own, exact)."""
+    P = np.hstack([new_camera_matrix(camera, args.balance, args.fov_scale), np.zeros((3, 1))])
+    calibration = CameraCalibration(spec.width, spec.height, camera.K, distortion_model,
+                                    camera.D if D is None else D, np.eye(3), P, args.camera_name)
+    fovs = camera.fields_of_view()
+    summary = {
+        'width': spec.width, 'height': spec.height, 'spec': dict(spec.given()),
+        'model': model, 'omega': None, 'f': float(camera.K[0, 0]),
+        'cx': float(camera.cx), 'cy': float(camera.cy), 'K': calibration.K.tolist(),
+        'distortion_model': distortion_model, 'D': calibration.D.tolist(), 'fit_error_px': fit_error,
+        'P': calibration.P.tolist(),
+        'hfov': fovs.get('hfov'), 'vfov': fovs.get('vfov'), 'dfov': fovs.get('dfov'),
+        'root_found': root_found, 'dfov_residuals': {},
+    }
+    return summary, calibration
+
+
 def _refined_summary(result, spec, solution, args):
     """`solve --json`'s record of the camera ``refine`` gives (the refined one, or zero-shot's)."""
     if not result.accepted:
@@ -510,22 +531,9 @@ def _refined_summary(result, spec, solution, args):
                                                            args.camera_name)
         summary = solution_summary(solution, calibration, fit)
         return summary, calibration
-    camera = result.camera
-    P = np.hstack([new_camera_matrix(camera, args.balance, args.fov_scale), np.zeros((3, 1))])
-    calibration = CameraCalibration(spec.width, spec.height, camera.K, 'equidistant', camera.D, np.eye(3), P,
-                                    args.camera_name)
-    fovs = camera.fields_of_view()
-    summary = json_safe({
-        'width': spec.width, 'height': spec.height, 'spec': dict(spec.given()),
-        'model': 'refined (Kannala-Brandt)', 'omega': None, 'f': float(camera.K[0, 0]),
-        'cx': float(camera.cx), 'cy': float(camera.cy), 'K': calibration.K.tolist(),
-        'distortion_model': 'equidistant', 'D': calibration.D.tolist(),
-        'fit_error_px': 0.0,  # the refined camera is a Kannala-Brandt camera: its D is exact
-        'P': calibration.P.tolist(),
-        'hfov': fovs.get('hfov'), 'vfov': fovs.get('vfov'), 'dfov': fovs.get('dfov'),
-        'root_found': solution.root_found, 'dfov_residuals': {},
-    })
-    return summary, calibration
+    summary, calibration = _kannala_brandt_record(result.camera, spec, 'refined (Kannala-Brandt)', args,
+                                                  root_found=solution.root_found)
+    return json_safe(summary), calibration
 
 
 def _debug_image(path, images, result, solution, args):
@@ -649,6 +657,25 @@ def _fov_spec(args, corners):
     return CameraSpec(corners.width, corners.height, args.hfov, args.vfov, args.dfov)
 
 
+def _board_lines(summary, corners, used, rms_px):
+    """`calibrate`'s text lines of the images used, the reprojection RMS and eq. 20 on all images."""
+    lines = [
+        f"images    {len(used)}" + (f" ({os.path.basename(used[0])})" if len(used) == 1 else '')
+        + f", board {corners.board.size}, square {corners.board.square:g} m",
+        f"rms       {rms_px:.4f} px (reprojection, on the calibration images)",
+    ]
+    if 'eps_all_px' in summary:
+        lines.append(f"eps all   {summary['eps_all_px']:.4f} px (eq. 20 on all {len(corners)} images)")
+    return lines
+
+
+def _print_calibrate_text(lines, summary, args):
+    lines += [f'note      {n}' for n in summary['notes']]
+    if args.yaml:
+        lines.append(f'wrote {args.yaml}')
+    print('\n'.join(lines))
+
+
 def _cmd_calibrate(args):
     corners = _corner_set(args, args.single)
     views = None
@@ -700,18 +727,8 @@ def _cmd_calibrate(args):
     lines = summary_text(summary).splitlines()
     if spec is None:
         lines[0] = f"camera    {summary['width']} x {summary['height']} px, no spec (default start)"
-    lines += [
-        f"method    {summary['method']} (start: {result.init}), principal point {summary['principal_point']}",
-        f"images    {len(used)}" + (f" ({os.path.basename(used[0])})" if len(used) == 1 else '')
-        + f", board {corners.board.size}, square {corners.board.square:g} m",
-        f"rms       {result.rms_px:.4f} px (reprojection, on the calibration images)",
-    ]
-    if 'eps_all_px' in summary:
-        lines.append(f"eps all   {summary['eps_all_px']:.4f} px (eq. 20 on all {len(corners)} images)")
-    lines += [f'note      {n}' for n in summary['notes']]
-    if args.yaml:
-        lines.append(f'wrote {args.yaml}')
-    print('\n'.join(lines))
+    lines.append(f"method    {summary['method']} (start: {result.init}), principal point {summary['principal_point']}")
+    _print_calibrate_text(lines + _board_lines(summary, corners, used, result.rms_px), summary, args)
     return 0
 
 
@@ -737,7 +754,6 @@ def _calibrate_with_spec(args, corners, views, spec):
         raise CliError(f'--fov-tolerance {args.fov_tolerance:g} is invalid: allowed: degrees, greater than 0')
     fit = fit_board(corners, spec, views, fov_tolerance_deg=args.fov_tolerance)
     camera = fit.camera
-    P = np.hstack([new_camera_matrix(camera, args.balance, args.fov_scale), np.zeros((3, 1))])
     if args.distortion_model == 'equidistant':
         D, fit_error = np.asarray(camera.D, float), 0.0  # a Kannala-Brandt camera: its D is exact
         fit_warnings = []
@@ -748,17 +764,10 @@ def _calibrate_with_spec(args, corners, views, spec):
             f'the ROS {args.distortion_model} fit of the calibrated camera is off by up to {fit_error:.3g} px in '
             f'the image (fit error; warning above {FIT_WARNING_PX:g} px), so tools that rectify with its D '
             'coefficients are that far off: use --distortion-model equidistant (exact)']
-    calibration = CameraCalibration(corners.width, corners.height, camera.K, args.distortion_model, D, np.eye(3), P,
-                                    args.camera_name)
-    fovs = camera.fields_of_view()
+    summary, calibration = _kannala_brandt_record(camera, spec, 'calibrated (Kannala-Brandt)', args,
+                                                  args.distortion_model, D, fit_error)
     used = [corners.names[v] for v in fit.views]
-    summary = {
-        'width': corners.width, 'height': corners.height, 'spec': dict(spec.given()),
-        'model': 'calibrated (Kannala-Brandt)', 'omega': None, 'f': float(camera.fx),
-        'cx': float(camera.cx), 'cy': float(camera.cy), 'K': calibration.K.tolist(),
-        'distortion_model': args.distortion_model, 'D': calibration.D.tolist(), 'fit_error_px': fit_error,
-        'P': calibration.P.tolist(), 'hfov': fovs.get('hfov'), 'vfov': fovs.get('vfov'), 'dfov': fovs.get('dfov'),
-        'root_found': True, 'dfov_residuals': {},
+    summary.update({
         'warning': fit_warnings + list(fit.warnings),
         'method': METHOD_LABEL, 'init': 'zero-shot', 'a': None, 'spec_as': 'evidence',
         'principal_point': 'free (prior)', 'images': len(used), 'image_names': used,
@@ -767,7 +776,7 @@ def _calibrate_with_spec(args, corners, views, spec):
         'rejected_corners': [r.to_dict() for r in fit.rejected],
         'duplicate_views': [], 'uncertainty_px': fit.uncertainty_px, 'uncertainty': fit.uncertainty.reason,
         'fit': fit.summary(),
-    }
+    })
     if views is not None and len(corners) > 1:
         summary['eps_all_px'] = reprojection_error(camera, corners).rms
     if args.yaml:
@@ -780,19 +789,11 @@ def _calibrate_with_spec(args, corners, views, spec):
     lines = summary_text(json_safe(summary)).splitlines() + [
         f"method    {METHOD_LABEL}, spec as evidence (FOVs +- {args.fov_tolerance:g} deg), start: zero-shot, "
         f"principal point free (prior), k1..k{fit.order} moved",
-        f"images    {len(used)}" + (f" ({os.path.basename(used[0])})" if len(used) == 1 else '')
-        + f", board {corners.board.size}, square {corners.board.square:g} m",
-        f"rms       {fit.rms_px:.4f} px (reprojection, on the calibration images)",
-    ]
-    if 'eps_all_px' in summary:
-        lines.append(f"eps all   {summary['eps_all_px']:.4f} px (eq. 20 on all {len(corners)} images)")
+    ] + _board_lines(summary, corners, used, fit.rms_px)
     lines.append(_uncertainty_line(summary, args.fov_tolerance))
     lines.append(f"spec      {given} deg (given -> fitted): "
                  + ('agrees' if fit.spec_agrees else 'DISAGREES with the corners (see the warning)'))
-    lines += [f'note      {n}' for n in summary['notes']]
-    if args.yaml:
-        lines.append(f'wrote {args.yaml}')
-    print('\n'.join(lines))
+    _print_calibrate_text(lines, summary, args)
     return 0
 
 
