@@ -49,8 +49,34 @@ def _colcon_style_install(argv):
     return False
 
 
+def _direct_entry_script(path, module, function):
+    """Rewrite setuptools' easy-install wrapper at ``path`` as pip writes console scripts: a
+    plain import of ``module``. The easy-install wrapper first looks the entry point up in the
+    installed metadata (importlib.metadata scans sys.path), 50 ms of every `ros2 run` before the
+    node's first line runs, and that start-up is what the first CameraInfo waits for (issue 14).
+    The interpreter line stays the one setuptools wrote."""
+    with open(path) as f:
+        text = f.read()
+    if 'EASY-INSTALL-ENTRY-SCRIPT' not in text:
+        return
+    shebang = text.splitlines()[0]
+    with open(path, 'w') as f:
+        f.write(f"""{shebang}
+# console script of {package_name}: {module}:{function}, imported directly (as pip writes it)
+import re
+import sys
+
+from {module} import {function}
+
+if __name__ == '__main__':
+    sys.argv[0] = re.sub(r'(-script\\.pyw?|\\.exe)?$', '', sys.argv[0])
+    sys.exit({function}())
+""")
+
+
 class install(_install):
-    """colcon's install, plus ``<prefix>/bin/zeroshot-calib``.
+    """colcon's install, with console scripts that import their module directly, plus
+    ``<prefix>/bin/zeroshot-calib``.
 
     setup.cfg sends every script to lib/zeroshot_calib_ros/ (where `ros2 run` looks, and where
     `node` must stay); the CLI also belongs on PATH after `source install/setup.bash`. colcon
@@ -59,6 +85,12 @@ class install(_install):
 
     def run(self):
         super().run()
+        for entry in console_scripts:
+            name, target = (part.strip() for part in entry.split('='))
+            module, function = target.split(':')
+            path = os.path.join(self.install_scripts, name)
+            if os.path.isfile(path):
+                _direct_entry_script(path, module, function)
         script = os.path.join(self.install_scripts, 'zeroshot-calib')
         if os.path.basename(os.path.normpath(self.install_scripts)) == package_name and os.path.isfile(script):
             bindir = os.path.join(self.install_base, 'bin')

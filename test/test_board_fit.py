@@ -161,3 +161,42 @@ def test_shared_set_single_shot_with_the_spec_is_never_worse_than_zero_shot():
         start.append(reprojection_error(calibrate(corners, 'fc+zs', [k], spec).camera, corners).rms)
     assert max(evidence) <= zs_eps + 0.2, (evidence, zs_eps)
     assert np.mean(evidence) < np.mean(start) - 1.0, (evidence, start)
+
+
+def _dense_error_to(truth, camera):
+    """RMS (px) over a grid of the image of ``camera`` - ``truth`` after the best rotation."""
+    rays = truth.unproject(pixel_grid(truth.width, truth.height))
+    rays = rays[np.all(np.isfinite(rays), axis=1)]
+    d = displacement(truth, camera, rays)
+    return float(np.sqrt(np.nanmean(np.sum(d * d, axis=1))))
+
+
+def test_the_gate_keeps_zero_shot_where_one_poor_view_cannot_beat_it():
+    """A known camera that IS the zero-shot camera of its FOVs (nothing can beat zero-shot
+    there) and one small, far, central view with 0.3 px noise: the MAP alone moves away from
+    the truth (the premise, checked), so the result is the zero-shot camera, within 0.2 px of the
+    truth, said so (accepted False, a 'zero-shot kept' reason and note), with zero-shot's error
+    bar."""
+    from zeroshot_calib_ros.core.estimation.refine import zero_shot_camera
+    from zeroshot_calib_ros.core.estimation.uncertainty import zero_shot_uncertainty
+    spec = true_spec()
+    truth = zero_shot_camera(spec, W, H)
+    corners, _ = board_views(truth, 1, seed=5, distance=(0.5, 0.55), spread=0.06, noise=0.3)
+    fit = fit_board(corners, spec, [0])
+    assert _dense_error_to(truth, fit.fitted_camera) > 0.4  # the MAP alone would be worse
+    assert _dense_error_to(truth, fit.camera) < 0.2
+    assert not fit.accepted and 'zero-shot kept' in fit.reason
+    assert any('zero-shot kept' in n for n in fit.notes)
+    assert fit.summary()['accepted'] is False
+    assert fit.uncertainty_px == pytest.approx(zero_shot_uncertainty(spec).rms_px, rel=1e-6)
+
+
+def test_the_gate_accepts_views_that_pin_the_camera():
+    """The known camera (0.46 % from the zero-shot shape, principal point 6 px off) and two
+    well-spread views: the MAP is accepted and nearer the truth than zero-shot by more than 0.5 px
+    (RMS over the image up to 80 degrees off-axis, after the best rotation)."""
+    corners, _ = board_views(TRUTH, 2, seed=11, distance=(0.22, 0.3), spread=0.3)
+    fit = fit_board(corners, true_spec(), [0, 1])
+    assert fit.accepted, fit.reason
+    assert fit.camera is fit.fitted_camera
+    assert dense_error(fit.camera) < dense_error(fit.zero_shot_camera) - 0.5

@@ -603,6 +603,33 @@ def test_calibrate_with_a_spec_uses_it_as_evidence_by_default(tmp_path, capsys):
     assert f"error bar {record['uncertainty_px']:.2f} px" in out and 'agrees' in out
 
 
+def test_calibrate_says_when_the_gate_keeps_zero_shot_and_writes_that_camera(tmp_path, capsys):
+    """One small, far, central view of a camera that is the zero-shot camera of its own FOVs (the
+    MAP alone moves away from it: test_board_fit's premise): `calibrate` writes the zero-shot
+    camera (K within 1e-6 of it in the YAML), and says so where a user looks, the JSON's
+    `accepted` / `method` / `model` and the text's method line, with the gate's reason."""
+    from test_board_fit import H, W, board_views, true_spec
+    from zeroshot_calib_ros.core.estimation.refine import zero_shot_camera
+    spec = true_spec()
+    truth = zero_shot_camera(spec, W, H)
+    corners, _ = board_views(truth, 1, seed=5, distance=(0.5, 0.55), spread=0.06, noise=0.3)
+    path = tmp_path / 'far_corners.json'
+    corners.save(str(path))
+    spec_args = ['--hfov', repr(spec.hfov), '--vfov', repr(spec.vfov)]
+    out_yaml = tmp_path / 'camera.yaml'
+    status, out, err = run_main(['calibrate', '--corners', str(path), *spec_args, '--json', '--yaml', str(out_yaml)],
+                                capsys)
+    assert status == 0, err
+    record = json.loads(out)
+    assert record['accepted'] is False and record['reason'].startswith('zero-shot kept')
+    assert record['method'].startswith('zero-shot kept') and record['model'].startswith('zero-shot')
+    written = yaml.safe_load(out_yaml.read_text())
+    assert np.allclose(np.reshape(written['camera_matrix']['data'], (3, 3)), truth.K, rtol=0, atol=1e-6)
+    status, out, _ = run_main(['calibrate', '--corners', str(path), *spec_args], capsys)
+    method = next(x for x in out.splitlines() if x.startswith('method'))
+    assert status == 0 and 'zero-shot kept' in method and 'moved' not in method
+
+
 def test_calibrate_spec_as_start_is_the_earlier_fc_zs(tmp_path, capsys):
     """`--spec-as start`: FC_eq.d. from the zero-shot camera, the same camera as the library's
     calibrate(corners, 'fc+zs'), with no error bar; the default differs from it."""

@@ -417,3 +417,17 @@ def test_rezoom_finds_the_zoom_the_fovs_ask_for():
     rays = rays[np.all(np.isfinite(rays), axis=1)] * [1 / s, 1 / s, 1.0]
     expected = TRUTH.project(rays * [s, s, 1.0])
     assert np.max(np.linalg.norm(out.project(rays) - expected, axis=1)) < 0.05
+
+
+def test_one_camera_with_a_wrong_spec_is_the_spec_disagreeing_not_the_images():
+    """Four views of the true lens and a spec whose hfov and dfov are 6 degrees wider than the
+    lens's (fields_of_view_through_axis of the known camera): the images agree with one another,
+    the spec does not, and the reason must say so, not blame the images (the FOVs pull each
+    image's camera towards the wrong spec by a different amount; the consistency test between
+    images must not take that for two cameras). Zero-shot kept."""
+    fovs = fields_of_view_through_axis(TRUTH)
+    spec = CameraSpec(W, H, hfov=fovs['hfov'] + 6, vfov=fovs['vfov'], dfov=fovs['dfov'] + 6)
+    result = refine_camera(spec, views(TRUTH, np.random.default_rng(4), 10))
+    assert not result.accepted
+    assert result.reason.startswith('disagreement between the lines and the spec'), result.reason
+    assert np.allclose(result.camera.K, result.zero_shot_camera.K)

@@ -133,3 +133,43 @@ def test_sourcing_install_setup_bash_puts_the_cli_on_path():
     assert lines[1] == '0'  # `node` stays off PATH
     result = json.loads(lines[2])
     assert abs(result['f'] - 876.0) < 0.1  # the paper's Table 2, Hero9(W1)
+
+
+def test_installed_node_starts_on_what_its_first_camera_info_needs():
+    """Start-up of the installed executable (issue 14): its wrapper imports the node module
+    directly (setuptools' easy-install wrapper first scans the installed metadata with
+    importlib.metadata, 50 ms), and the node module loads neither OpenCV (only rectification
+    needs it), nor the online refinement (only refine:=true), nor scipy.optimize. `--help`
+    imports the node module and stops before rclpy.init."""
+    _require_install_tree()
+    env = dict(os.environ, PYTHONPATH=str(next(INSTALL.glob('lib/python3*/site-packages'))))
+    exe = LIBEXEC / 'node'
+    interpreter = exe.read_text().splitlines()[0][2:].strip()
+    result = subprocess.run([interpreter, '-X', 'importtime', str(exe), '--help'], env=env,
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert 'ros2 run zeroshot_calib_ros node' in result.stdout
+    imported = {line.split('|')[-1].strip() for line in result.stderr.splitlines() if line.startswith('import time:')}
+    assert 'zeroshot_calib_ros.ros.node' in imported
+    unwanted = {'importlib.metadata', 'cv2', 'zeroshot_calib_ros.core.ros_data.online_refinement', 'scipy.optimize'}
+    assert not imported & unwanted, sorted(imported & unwanted)
+
+
+def test_install_tree_is_byte_compiled():
+    """Every module of the install tree has a current .pyc, as a user's colcon build leaves it
+    (without, each start of the node compiles its modules again: about 0.1 s before the first
+    CameraInfo). The build must byte-compile even where PYTHONDONTWRITEBYTECODE is set."""
+    import importlib.util
+    _require_install_tree()
+    sources = sorted(next(INSTALL.glob('lib/python3*/site-packages')).joinpath(PKG).rglob('*.py'))
+    assert len(sources) > 20
+    stale = []
+    for source in sources:
+        cached = Path(importlib.util.cache_from_source(str(source)))
+        if not cached.is_file():
+            stale.append(f'{source.name}: no .pyc')
+            continue
+        header = cached.read_bytes()[:16]
+        if int.from_bytes(header[8:12], 'little') != int(source.stat().st_mtime) & 0xFFFFFFFF:
+            stale.append(f'{source.name}: .pyc older than the source')
+    assert not stale, stale

@@ -181,3 +181,16 @@ def test_every_encoding_is_rectified_channel_by_channel_as_opencv_remaps_it(enco
     else:
         assert (out[unseen] == 0).all()
         assert out.max() > 0.9 * np.iinfo(dtype).max  # the whole range survives (16 bits not cut to 8)
+
+
+def test_interpolation_values_are_opencvs_remap_flags():
+    """image_proc's interpolation numbers rectify as cv2.remap with OpenCV's flag of that name
+    (the module maps them without importing cv2)."""
+    camera = solve_zero_shot(CameraSpec(160, 90, 118, 69)).camera
+    image = np.random.default_rng(3).integers(0, 256, (90, 160), dtype=np.uint8)
+    flags = {0: cv2.INTER_NEAREST, 1: cv2.INTER_LINEAR, 2: cv2.INTER_CUBIC, 4: cv2.INTER_LANCZOS4}
+    for value, flag in flags.items():
+        rectifier = Rectifier(camera, interpolation=value)
+        expected = cv2.remap(image, rectifier.map1, rectifier.map2, flag, borderMode=cv2.BORDER_CONSTANT,
+                             borderValue=0)
+        assert np.array_equal(rectifier.rectify(image), expected), value

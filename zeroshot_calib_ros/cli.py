@@ -764,12 +764,15 @@ def _calibrate_with_spec(args, corners, views, spec):
             f'the ROS {args.distortion_model} fit of the calibrated camera is off by up to {fit_error:.3g} px in '
             f'the image (fit error; warning above {FIT_WARNING_PX:g} px), so tools that rectify with its D '
             'coefficients are that far off: use --distortion-model equidistant (exact)']
-    summary, calibration = _kannala_brandt_record(camera, spec, 'calibrated (Kannala-Brandt)', args,
-                                                  args.distortion_model, D, fit_error)
+    # the gate may keep the zero-shot camera (fit_board, step 4): then that is what is written,
+    # and the record says so where a user looks first (model, method), not only in the notes
+    model = 'calibrated (Kannala-Brandt)' if fit.accepted else 'zero-shot (Kannala-Brandt fit; the board fit not adopted)'
+    summary, calibration = _kannala_brandt_record(camera, spec, model, args, args.distortion_model, D, fit_error)
     used = [corners.names[v] for v in fit.views]
     summary.update({
         'warning': fit_warnings + list(fit.warnings),
-        'method': METHOD_LABEL, 'init': 'zero-shot', 'a': None, 'spec_as': 'evidence',
+        'method': METHOD_LABEL if fit.accepted else f'zero-shot kept ({METHOD_LABEL} not adopted)',
+        'accepted': fit.accepted, 'reason': fit.reason, 'init': 'zero-shot', 'a': None, 'spec_as': 'evidence',
         'principal_point': 'free (prior)', 'images': len(used), 'image_names': used,
         'board': {'cols': corners.board.cols, 'rows': corners.board.rows, 'square': corners.board.square},
         'rms_px': fit.rms_px, 'notes': list(fit.notes),
@@ -786,12 +789,12 @@ def _calibrate_with_spec(args, corners, views, spec):
         print(json.dumps(json_safe(summary)))
         return 0
     given = ', '.join(f'{k} {v:g} -> {fit.fovs_fitted[k]:.2f}' for k, v in fit.fovs_given.items())
-    lines = summary_text(json_safe(summary)).splitlines() + [
-        f"method    {METHOD_LABEL}, spec as evidence (FOVs +- {args.fov_tolerance:g} deg), start: zero-shot, "
-        f"principal point free (prior), k1..k{fit.order} moved",
-    ] + _board_lines(summary, corners, used, fit.rms_px)
+    method = (f"method    {METHOD_LABEL}, spec as evidence (FOVs +- {args.fov_tolerance:g} deg), start: zero-shot, "
+              f"principal point free (prior), k1..k{fit.order} moved" if fit.accepted else
+              f"method    zero-shot kept: the {METHOD_LABEL} was not adopted ({fit.reason.split(': ', 1)[-1]})")
+    lines = summary_text(json_safe(summary)).splitlines() + [method] + _board_lines(summary, corners, used, fit.rms_px)
     lines.append(_uncertainty_line(summary, args.fov_tolerance))
-    lines.append(f"spec      {given} deg (given -> fitted): "
+    lines.append(f"spec      {given} deg (given -> {'fitted' if fit.accepted else 'the board fit'}): "
                  + ('agrees' if fit.spec_agrees else 'DISAGREES with the corners (see the warning)'))
     _print_calibrate_text(lines, summary, args)
     return 0

@@ -63,7 +63,6 @@ from ..core.ros_data.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob 
 from ..core.ros_data.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
                                              RECTIFICATION_PARAMETERS, Settings, number_in_range,
                                              solve_from_settings, usage_text)
-from ..core.ros_data.online_refinement import OnlineRefiner, refined_calibration  # noqa: E402
 from ..core.zeroshot.solver import NoConvergence  # noqa: E402
 from ..core.zeroshot.spec import SpecError  # noqa: E402
 from .messages import calibration_from_camera_info, fill_camera_info, serialized_camera_info  # noqa: E402
@@ -138,7 +137,7 @@ class ZeroShotCalibNode(Node):
         settings = Settings.from_values(self._values())
         self._settings = settings
         self._refine, self._refine_interval = self._refine_values(self._values())
-        self._refiner: Optional[OnlineRefiner] = None
+        self._refiner = None  # an online_refinement.OnlineRefiner while refine is on
         self._refine_off = 'refine is false'  # why no refiner runs (diagnostics)
         url = self.get_parameter('camera_info_url').value
         self._url_path = resolve_camera_info_url(url, settings.camera_name)
@@ -770,6 +769,10 @@ class ZeroShotCalibNode(Node):
             if refiner.spec == self._settings.spec and refiner.status.state not in ('failed', 'stopped'):
                 return  # re-solved from the same spec: the evidence still holds
             refiner.stop('the spec changed')
+        # imported here: its worker process, pickling and Kannala-Brandt fitting are not what a
+        # node with refine off (the default) should import before its first CameraInfo
+        from ..core.ros_data.online_refinement import OnlineRefiner
+
         initial = active.camera if active.source == 'refined' else None
         self._refiner = OnlineRefiner(self._settings.spec, self._refine_interval, initial=initial)
         self._refine_logged = None
@@ -820,6 +823,8 @@ class ZeroShotCalibNode(Node):
         width, height = basis.calibration.width, basis.calibration.height
         settings = self._settings
         s = result.status
+        from ..core.ros_data.online_refinement import refined_calibration
+
         try:
             calibration = refined_calibration(result.camera, width, height, settings.balance, settings.fov_scale,
                                               settings.camera_name)

@@ -1,17 +1,21 @@
-"""Rectification to a pinhole camera, with maps computed from the exact camera model."""
+"""Rectification to a pinhole camera, with maps computed from the exact camera model.
+
+OpenCV is imported where maps are built or images remapped, not with the module: a node with
+rectify off never needs it, and its first CameraInfo should not wait the 20-30 ms of the import
+(issue 14)."""
 from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import Optional, Tuple
 
-import cv2
 import numpy as np
 
 from ..lens.models import CameraModel
 
-INTERPOLATIONS = {0: cv2.INTER_NEAREST, 1: cv2.INTER_LINEAR, 2: cv2.INTER_CUBIC, 4: cv2.INTER_LANCZOS4}
-"""image_proc's ``interpolation`` values (3, area, has no remap equivalent)."""
+INTERPOLATIONS = {0: 0, 1: 1, 2: 2, 4: 4}
+"""image_proc's ``interpolation`` values (3, area, has no remap equivalent) -> OpenCV's: the same
+numbers (cv2.INTER_NEAREST, INTER_LINEAR, INTER_CUBIC, INTER_LANCZOS4; test_rectify checks)."""
 
 _MAP_ROWS_PER_CHUNK = 128  # bounds the float64 temporaries to ~ 128 x width x 3 x 8 bytes
 
@@ -90,6 +94,8 @@ def rectification_maps(camera: CameraModel, P: np.ndarray, size: Tuple[int, int]
     Rows are computed in chunks of float64 work on ``threads`` threads (default: one per CPU;
     numpy and OpenCV release the GIL, so the chunks run in parallel); the result does not depend
     on the number of threads."""
+    import cv2
+
     width, height = size
     Pinv = np.linalg.inv(np.asarray(P, dtype=float)[:3, :3])
     M = Pinv if R is None else np.asarray(R, dtype=float).T @ Pinv
@@ -142,6 +148,8 @@ class Rectifier:
         self.map1, self.map2 = rectification_maps(camera, self.P, self.size, threads=map_threads)
 
     def rectify(self, image: np.ndarray, out: Optional[np.ndarray] = None) -> np.ndarray:
+        import cv2  # loaded by the maps already: a dictionary lookup per frame
+
         h, w = image.shape[:2]
         if (w, h) != self.size:
             raise ValueError(f'image is {w}x{h}, the rectifier was built for {self.size[0]}x{self.size[1]}')
