@@ -930,12 +930,24 @@ def test_serialized_path_figures_are_the_results_files():
     assert uhd_bgr[12].endswith('(186/300)') and '186 of 300 bgr8 frames dropped' in text
     assert ratios[('3840x2160', 'bgr8')] == '0.85x' and ratios[('3840x2160', 'mono8')] == '0.95x'
     assert '(0.85x bgr8, 0.95x mono8)' in text
-    first = (RESULTS / 'first_camera_info.md').read_text().split('## With config/fastdds_shm.xml as committed')[1]
-    median = re.search(r'median: node ready (\d\.\d+) s, first CameraInfo (\d\.\d+) s; '
-                       r'first CameraInfo <= 0.6 s in (\d+) of (\d+) trials', first)
-    ready, info, within, trials = median.groups()
+    latest = (RESULTS / 'first_camera_info.md').read_text().split('## This stop: byte-compiled install')[1]
+    off, on = latest.split('Rectify on:')[0], latest.split('Rectify on:')[1].split('Import of the node module')[0]
+    medians = []
+    for part, limit in ((off, '0.6'), (on, '0.9')):
+        median = re.search(r'median: node ready (\d\.\d+) s, first CameraInfo (\d\.\d+) s; '
+                           rf'first CameraInfo <= {limit} s in (\d+) of (\d+) trials', part)
+        medians.append(median.groups())
+    (ready, info_off, within_off, trials_off), (_, info_on, within_on, trials_on) = medians
     assert f'a median {float(ready):.2f} s after its process starts' in text
-    assert f'a median {float(info):.2f} s after ({within} of {trials} start-ups within 0.6 s)' in text
+    assert (f'a median {float(info_off):.2f} s after with rectify off ({within_off} of {trials_off} start-ups '
+            f'within 0.6 s) and {float(info_on):.2f} s with rectify on ({within_on} of {trials_on} within 0.9 s)') in text
+    previous = (RESULTS / 'first_camera_info.md').read_text().split('## With config/fastdds_shm.xml as committed')[1]
+    old = re.search(r'median: node ready (\d\.\d+) s, first CameraInfo (\d\.\d+) s', previous).groups()
+    assert f"the previous stop's node: {float(old[0]):.2f} s and {float(old[1]):.2f} s" in text
+    imports = dict(re.findall(r'import zeroshot_calib_ros.ros.node, (.+?): median (\d\.\d+) s', latest))
+    assert (f"takes {float(imports['install tree']):.2f} s against {float(imports['6c35e95 byte-compiled']):.2f} s "
+            f"for the previous stop's package byte-compiled and {float(imports['6c35e95 as exported (no .pyc)']):.2f} s"
+            in text)
 
 
 @pytest.mark.parametrize('vfov, a, fit_px', [(112.5, 1.0, 1e-12), (110, 1.04, 0.011), (115, 0.961, 0.0055),
