@@ -72,7 +72,7 @@ build: $(BSTAMP)
 # Quiet output (colcon-core's handlers only); the package's build log is shown
 # if the build fails. PYTHONDONTWRITEBYTECODE (set on these machines) would make setuptools skip
 # byte-compiling the install tree, and every start of the node would compile its modules again
-# (~0.1 s before the first CameraInfo); a user's colcon build compiles them, so this one does too.
+# (0.05-0.1 s before the first CameraInfo); a user's colcon build compiles them, so this one does too.
 $(BSTAMP): $(VSTAMP) $(SOURCES)
 	cd $(TOP) && . $(VENV)/bin/activate && env -u PYTHONDONTWRITEBYTECODE colcon --log-base log build \
 		--paths . --build-base build --install-base install \

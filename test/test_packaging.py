@@ -138,7 +138,7 @@ def test_sourcing_install_setup_bash_puts_the_cli_on_path():
 def test_installed_node_starts_on_what_its_first_camera_info_needs():
     """Start-up of the installed executable (issue 14): its wrapper imports the node module
     directly (setuptools' easy-install wrapper first scans the installed metadata with
-    importlib.metadata, 50 ms), and the node module loads neither OpenCV (only rectification
+    importlib.metadata, up to 0.1 s here), and the node module loads neither OpenCV (only rectification
     needs it), nor the online refinement (only refine:=true), nor scipy.optimize. `--help`
     imports the node module and stops before rclpy.init."""
     _require_install_tree()
@@ -157,7 +157,7 @@ def test_installed_node_starts_on_what_its_first_camera_info_needs():
 
 def test_install_tree_is_byte_compiled():
     """Every module of the install tree has a current .pyc, as a user's colcon build leaves it
-    (without, each start of the node compiles its modules again: about 0.1 s before the first
+    (without, each start of the node compiles its modules again: 0.05-0.1 s before the first
     CameraInfo). The build must byte-compile even where PYTHONDONTWRITEBYTECODE is set."""
     import importlib.util
     _require_install_tree()

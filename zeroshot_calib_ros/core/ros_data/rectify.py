@@ -1,7 +1,7 @@
 """Rectification to a pinhole camera, with maps computed from the exact camera model.
 
 OpenCV is imported where maps are built or images remapped, not with the module: a node with
-rectify off never needs it, and its first CameraInfo should not wait the 20-30 ms of the import
+rectify off never needs it, and its first CameraInfo should not wait the 5-20 ms of the import
 (issue 14)."""
 from __future__ import annotations
 
