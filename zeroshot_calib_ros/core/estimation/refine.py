@@ -496,7 +496,7 @@ def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, prio
             f'uncertainties allow (chi^2 {q:.3g} for {dof} degrees of freedom, p = {p:.2g}); image {names[worst]} '
             f'differs most: principal point ({xs[worst][1]:.1f}, {xs[worst][2]:.1f}) +- ({sd[1]:.2g}, {sd[2]:.2g}) px '
             f'against ({others[1]:.1f}, {others[2]:.1f}) from the others (images of different cameras or lens '
-            'settings?)')
+            'settings, or curves in some images that are not straight in the scene?)')
 
 
 def _held_out(fit: LineFit, term: StraightnessTerm, held: np.ndarray, priors) -> tuple:
