@@ -89,10 +89,10 @@ def imports(ref: str, trials: int) -> int:
     site = next((TOP / 'install' / 'zeroshot_calib_ros' / 'lib').glob('python3*/site-packages'))
     with tempfile.TemporaryDirectory() as tmp:
         exported, compiled = Path(tmp) / 'exported', Path(tmp) / 'compiled'
+        archive = subprocess.run(['git', '-C', str(TOP), 'archive', ref, 'zeroshot_calib_ros'], check=True,
+                                 capture_output=True).stdout
         for d in (exported, compiled):
             d.mkdir()
-            archive = subprocess.run(['git', '-C', str(TOP), 'archive', ref, 'zeroshot_calib_ros'], check=True,
-                                     capture_output=True).stdout
             subprocess.run(['tar', '-x', '-C', str(d)], input=archive, check=True)
         compileall.compile_dir(str(compiled), quiet=1)
         easy = Path(tmp) / 'node'

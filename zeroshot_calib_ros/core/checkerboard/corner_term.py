@@ -165,6 +165,30 @@ class CornerTerm:
         d2 = np.sum(self.point_residuals(camera) ** 2, axis=-1)[self.weights > 0]
         return float(np.sqrt(np.mean(d2))) if np.all(np.isfinite(d2)) else float('inf')
 
+    # -- systematic errors (uncertainty.systematic_covariance) ---------------------------------
+    systematic_modes_text = 'every board view allowed a smooth systematic error (6 shapes per coordinate)'
+
+    def systematic_modes(self) -> np.ndarray:
+        """(2 n M, 12) per residual (the order of ``residuals``), the smooth shapes of a systematic
+        error of its view's detected grid (a shift, a tilt, a bow: a detector biased under strong
+        distortion, a board not flat): per coordinate 1, s, q, s^2, s q, q^2 of the corner's board
+        position (s, q in [-1, 1]), each scaled to 1 px RMS over the board, zero at rejected
+        corners."""
+        span = np.ptp(self.obj[:, :2], axis=0)
+        s, q = ((self.obj[:, :2] - self.obj[:, :2].min(axis=0)) / np.where(span > 0, span, 1.0) * 2.0 - 1.0).T
+        scalar = np.stack([np.ones_like(s), s, q, s * s, s * q, q * q], axis=1)
+        scalar = scalar / np.sqrt(np.mean(scalar * scalar, axis=0))
+        K = scalar.shape[1]
+        B = np.zeros((2 * self.m, 2 * K))
+        B[0::2, :K] = scalar
+        B[1::2, K:] = scalar
+        w = np.repeat(self.weights, 2, axis=1)
+        return (B[None] * w[:, :, None]).reshape(2 * self.n * self.m, 2 * K)
+
+    def residual_clusters(self) -> np.ndarray:
+        """The view of each residual (2 n M,): errors shared over a board view are one cluster."""
+        return np.repeat(np.arange(self.n), 2 * self.m)
+
     @property
     def poses(self) -> Optional[np.ndarray]:
         """(n, 6) the poses of the last evaluation (None before the first)."""

@@ -79,8 +79,8 @@ from .parameters import KB_TERMS, KannalaBrandtLayout
 from .problem import Problem
 from .refine import MAX_FOV_SIGMAS, zero_shot_camera
 from .terms import FOV_TOLERANCE_DEG, SHAPE_SIGMA, FovTerm, PrincipalPointPrior, ShapePrior
-from .uncertainty import (RANK_TOLERANCE, Uncertainty, displacement, pixel_grid, probability_other_is_better,
-                          problem_uncertainty, zero_shot_uncertainty)
+from .uncertainty import (Uncertainty, displacement, pixel_grid, probability_other_is_better, problem_uncertainty,
+                          systematic_covariance, zero_shot_uncertainty)
 
 INITIAL_SIGMA_PX = 0.5
 MIN_SIGMA_PX = 0.05
@@ -103,7 +103,7 @@ MAX_ZERO_SHOT_BETTER. Both the line refinement's values (``refine.MAX_ZERO_SHOT_
 ``refine.ZERO_SHOT_MARGIN``), kept equal here, not imported, so that each gate is changed knowingly."""
 SYSTEMATIC_PX = 0.0
 """The gate's posterior may let every board view err systematically by this much (px RMS per
-mode) in each of the smooth modes of ``board_modes`` (``systematic_covariance``). 0: on the
+mode) in each of the smooth modes of ``CornerTerm.systematic_modes`` (``uncertainty.systematic_covariance``). 0: on the
 synthetic tuning set (benchmarks/board_single_shot.py --tuning-set --gate-grid, 120 runs without
 and 120 with a 0.2 px smooth error per board) floors of 0.1 / 0.3 px kept zero-shot in 14 / 27
 and 11 / 20 more runs for 1 / 2 fewer runs worse than zero-shot by 0.48 px (of 4 and 4); the
@@ -229,62 +229,26 @@ def _uncertainty(top: Problem, top_x, camera, order) -> Uncertainty:
                        'highest order added', covariance=u.covariance, names=u.names)
 
 
-def board_modes(term: CornerTerm) -> np.ndarray:
-    """(n, 2 M, 12) smooth error modes of each view's corners (rows x0 y0 x1 y1 ..., the corner
-    term's residual order): per coordinate 1, s, q, s^2, s q, q^2 of the corner's board position
-    (s, q in [-1, 1]), each scaled to 1 px RMS over the board and zero at rejected corners."""
-    obj = term.obj
-    span = np.ptp(obj[:, :2], axis=0)
-    s, q = ((obj[:, :2] - obj[:, :2].min(axis=0)) / np.where(span > 0, span, 1.0) * 2.0 - 1.0).T
-    scalar = np.stack([np.ones_like(s), s, q, s * s, s * q, q * q], axis=1)
-    scalar = scalar / np.sqrt(np.mean(scalar * scalar, axis=0))
-    M, K = len(obj), scalar.shape[1]
-    B = np.zeros((2 * M, 2 * K))
-    B[0::2, :K] = scalar
-    B[1::2, K:] = scalar
-    w = np.repeat(term.weights, 2, axis=1)
-    return B[None] * w[:, :, None]
-
-
-def systematic_covariance(problem: Problem, x, floor_px: float, J: Optional[np.ndarray] = None):
-    """The covariance of ``problem`` at ``x`` when every view's corners may also err by
-    ``floor_px`` RMS in each of ``board_modes`` (a shift, a tilt, a bow of the board's detected
-    grid: a detector biased under strong distortion, a board not flat): the corners' noise is
-    sigma^2 I + floor^2 B B^T per view, its information J_v^T J_v - (J_v^T B)(e^-2 I + B^T B)^-1
-    (B^T J_v) (e = floor / sigma, whitened units; Woodbury), as ``uncertainty.systematic_covariance``
-    does for curves. What one view says through the fine structure of its grid is capped at what
-    a systematic error of ``floor_px`` allows, however many corners it has. None when singular."""
-    J = problem.jacobian(x) if J is None else J
-    if not np.all(np.isfinite(J)):
-        return None
-    H = J.T @ J
-    term = problem.terms[0]
-    if floor_px > 0 and isinstance(term, CornerTerm):
-        B = board_modes(term)
-        e2 = (floor_px / float(term.sigma)) ** 2
-        rows = 2 * term.m
-        for v in range(term.n):
-            Jv = J[v * rows:(v + 1) * rows]
-            JB = B[v].T @ Jv
-            inner = np.linalg.inv(B[v].T @ B[v] + np.eye(B.shape[2]) / e2)
-            H -= JB.T @ inner @ JB
-    scale = np.sqrt(np.clip(np.diag(H), 0.0, None))
-    if np.any(scale == 0):
-        return None
-    w, V = np.linalg.eigh(H / np.outer(scale, scale))
-    if w[0] < RANK_TOLERANCE ** 2 * w[-1]:
-        return None
-    return (V / w) @ V.T / np.outer(scale, scale)
+def _corners_at(term: CornerTerm, camera):
+    """(board poses (n, 6), corner distances (n, M) px, RMS over the corners in use) under
+    ``camera``, on a copy of ``term`` (its poses solved for this camera)."""
+    final = term.copy()
+    poses = final.solve_poses(camera)
+    d = np.linalg.norm(final.point_residuals(camera), axis=-1)
+    used = final.weights > 0
+    rms = float(np.sqrt(np.mean(d[used] ** 2))) if np.all(np.isfinite(d[used])) else float('inf')
+    return poses, d, rms
 
 
 def zero_shot_better(fit: 'BoardFit', floor_px: float = SYSTEMATIC_PX, margin_px: Optional[float] = None,
                      after_zoom: bool = GATE_AFTER_ZOOM):
     """(probability, distance px, spread px) that the zero-shot camera is nearer the truth than the
     MAP by more than ``margin_px`` (default ``ZERO_SHOT_MARGIN`` of the width) under the posterior
-    with the systematic floor ``floor_px`` (``systematic_covariance``;
-    ``uncertainty.probability_other_is_better``); (None, None, None) without a covariance."""
+    with the systematic floor ``floor_px`` (``uncertainty.systematic_covariance`` with the corner
+    term's ``systematic_modes``; ``uncertainty.probability_other_is_better``); (None, None, None)
+    without a covariance."""
     problem, x = fit.gate
-    cov = systematic_covariance(problem, x, floor_px)
+    cov, _ = systematic_covariance(problem, x, problem.jacobian(x), floor_px)
     if cov is None:
         return None, None, None
     margin = ZERO_SHOT_MARGIN * fit.zero_shot_camera.width if margin_px is None else margin_px
@@ -372,11 +336,8 @@ def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int
             f'the corners disagree with the spec: the MAP camera has {listed} (tolerance {fov_tolerance_deg:g} '
             f'degrees; chi^2 {chi2:.1f} for {len(z)} FOVs); the result is a compromise between them: check the '
             'FOVs (a crop or another lens?), or calibrate with --spec-as start')
-    final = term.copy()
-    poses = final.solve_poses(camera)
-    d = np.linalg.norm(final.point_residuals(camera), axis=-1)
-    used = final.weights > 0
-    rms = float(np.sqrt(np.mean(d[used] ** 2))) if np.all(np.isfinite(d[used])) else float('inf')
+    poses, d, rms = _corners_at(term, camera)
+    used = term.weights > 0
     rejected_list = [RejectedCorner(corners.names[views[i]], int(j), float(d[i, j]))
                      for i, j in zip(*np.nonzero(~used))]
     notes = list(report.notes)
@@ -409,10 +370,7 @@ def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int
         result.camera = zs
         result.uncertainty_px = zs_u_px
         result.uncertainty = zs_u
-        final = term.copy()
-        poses = final.solve_poses(zs)
-        d = np.linalg.norm(final.point_residuals(zs), axis=-1)
-        result.rms_px = float(np.sqrt(np.mean(d[used] ** 2))) if np.all(np.isfinite(d[used])) else float('inf')
+        poses, _, result.rms_px = _corners_at(term, zs)
         result.rvecs, result.tvecs = poses[:, :3].copy(), poses[:, 3:].copy()
         result.notes.append(result.reason + (f'; the MAP (not used): order {order}, uncertainty {u_px:.3g} px'
                                              if u_px is not None else ''))

@@ -263,9 +263,10 @@ def clustered_covariance(problem: Problem, x, J: np.ndarray) -> Tuple[Optional[n
 
 
 def systematic_covariance(problem: Problem, x, J: np.ndarray, floor_px: float) -> Tuple[Optional[np.ndarray], str]:
-    """The covariance when every curve may also err systematically, ``floor_px`` RMS in each
-    of its ``systematic_modes`` (a bow and an S along the curve; terms without the method are
-    taken as they are).
+    """The covariance when every cluster of a term's residuals (a curve of the straightness
+    term, a board view of the corner term: ``residual_clusters``) may also err systematically,
+    ``floor_px`` RMS in each of the term's ``systematic_modes`` (a bow and an S along a curve; a
+    smooth field over a board; terms without the method are taken as they are).
 
     The noise of a curve's residuals is then sigma^2 I + floor^2 B B^T, and its information
     J_c^T (I + e^2 B B^T)^-1 J_c = J_c^T J_c - (J_c^T B)(e^-2 I + B^T B)^-1 (B^T J_c) in
@@ -282,7 +283,7 @@ def systematic_covariance(problem: Problem, x, J: np.ndarray, floor_px: float) -
     camera = problem.layout.camera(x)
     H = np.zeros((J.shape[1], J.shape[1]))
     start = 0
-    used = False
+    used = []
     for term in problem.terms:
         n = len(np.atleast_1d(term.residuals(camera)))
         block = J[start:start + n]
@@ -294,14 +295,14 @@ def systematic_covariance(problem: Problem, x, J: np.ndarray, floor_px: float) -
                 continue
             clusters = term.residual_clusters()
             e2 = (floor_px / float(term.sigma)) ** 2
-            C = int(clusters.max()) + 1
-            JB = np.zeros((C, 2, J.shape[1]))          # per curve: B^T J_c
+            C, K = int(clusters.max()) + 1, B.shape[1]
+            JB = np.zeros((C, K, J.shape[1]))          # per cluster: B^T J_c
             np.add.at(JB, clusters, B[:, :, None] * block[:, None, :])
-            BB = np.zeros((C, 2, 2))                   # per curve: B^T B
+            BB = np.zeros((C, K, K))                   # per cluster: B^T B
             np.add.at(BB, clusters, B[:, :, None] * B[:, None, :])
-            inner = np.linalg.inv(BB + np.eye(2)[None] / e2)
+            inner = np.linalg.inv(BB + np.eye(K)[None] / e2)
             H -= np.einsum('cip,cij,cjq->pq', JB, inner, JB)
-            used = True
+            used.append(term.systematic_modes_text)
     if start != len(J):
         return covariance(J)
     # H is J^T J less what the systematic modes take; invert it the way covariance() does
@@ -314,8 +315,8 @@ def systematic_covariance(problem: Problem, x, J: np.ndarray, floor_px: float) -
                       f'{math.sqrt(w[-1] / max(w[0], 1e-300)):.2g})')
     cov = (V / w) @ V.T / np.outer(scale, scale)
     reason = 'Laplace approximation at the solution'
-    if used:
-        reason += f', every curve allowed a systematic bow and S of {floor_px:g} px RMS'
+    for text in used:
+        reason += f', {text} of {floor_px:g} px RMS'
     return cov, reason
 
 

@@ -232,6 +232,9 @@ class StraightnessTerm:
                 out[start:start + size, :, k] = normal * (mode / rms if rms > 0 else 0.0)[:, None]
         return out.reshape(2 * len(p), 2)
 
+    systematic_modes_text = 'every curve allowed a systematic bow and S'
+    """What ``uncertainty.systematic_covariance`` says it allowed for this term's clusters."""
+
     def residual_clusters(self) -> np.ndarray:
         """The curve of each residual (2N,): errors shared along a curve are one cluster for a
         cluster-robust covariance."""
