@@ -254,10 +254,10 @@ MUTANTS = [
     dict(
         id='map-budget-4-bytes-a-pixel',
         file=f'{ROS_DATA}/image_frames.py',
-        old='MAP_BYTES_PER_PIXEL = 6\n',
+        old='MAP_BYTES_PER_PIXEL = 8\n',
         new='MAP_BYTES_PER_PIXEL = 4\n',
-        behaviour='max_map_memory_mb: memory budget of the rectification maps (6 bytes a pixel); maps exceeding it are refused',
-        tests=['test/test_readme_claims.py::test_maps_take_6_bytes_a_pixel_and_the_default_budget_is_an_eighth_of_memory',
+        behaviour='max_map_memory_mb: memory budget of the rectification maps (at most 8 bytes a pixel); maps exceeding it are refused',
+        tests=['test/test_readme_claims.py::test_maps_take_at_most_8_bytes_a_pixel_and_the_default_budget_is_an_eighth_of_memory',
                'test/test_node_contracts.py::test_a_frame_size_whose_maps_exceed_the_budget_is_counted_and_not_rectified',
                'test/test_node_contracts.py::test_too_large_maps_are_refused_before_success_and_the_calibration_kept'],
     ),

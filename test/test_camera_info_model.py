@@ -15,7 +15,7 @@ from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
 from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.ros_data.camera_info_model import POINT_CRITERIA, CameraInfoModel
 from zeroshot_calib_ros.core.lens.models import camera_from_calibration
-from zeroshot_calib_ros.core.ros_data.rectify import Rectifier
+from zeroshot_calib_ros.core.ros_data.rectify import Rectifier, convert_maps, rectification_maps
 
 W, H = 1280, 720
 K_PIN = np.array([[800.0, 0.0, 652.3], [0.0, 795.0, 361.7], [0.0, 0.0, 1.0]])
@@ -272,13 +272,18 @@ def test_rectify_image_is_cv2_remap_with_cv2_maps(model):
 
 def test_rectify_image_against_our_rectifier_for_the_hero9_calibration(hero9):
     """Our Rectifier (image_rect of our node) computes maps from the exact Kannala-Brandt model,
-    cv2.fisheye inverts the same polynomial: both round to the 1/32 px fixed point, so they
-    differ by one step (1/32 px) where the exact value lies near a step boundary."""
+    cv2.fisheye inverts the same polynomial. Our exact (float) maps lie within half a 1/32 px
+    fixed-point step of image_geometry's; in fixed point (the format bgr8 frames are remapped
+    with) both round, so they differ by one step where the exact value lies near a boundary."""
     cam = CameraInfoModel.from_calibration(hero9)
     rectifier = Rectifier(camera_from_calibration(hero9.distortion_model, hero9.K, hero9.D, 1920, 1080),
                           P=hero9.P[:3, :3])
     ours = cv2.convertMaps(*cam.rectification_maps(), cv2.CV_32FC1)
-    theirs = cv2.convertMaps(rectifier.map1, rectifier.map2, cv2.CV_32FC1)
+    exact = rectification_maps(rectifier.camera, rectifier.P, rectifier.size, map_format='float')
+    # exact (float) maps: within half a fixed-point step of image_geometry's everywhere
+    exact_diff = np.maximum(np.abs(ours[0] - exact[0]), np.abs(ours[1] - exact[1]))
+    assert exact_diff.max() <= 1 / 64 + 1e-4
+    theirs = cv2.convertMaps(*convert_maps(exact, 'fixed'), cv2.CV_32FC1)  # what bgr8 frames are remapped with
     map_diff = np.maximum(np.abs(ours[0] - theirs[0]), np.abs(ours[1] - theirs[1]))
     rng = np.random.default_rng(7)
     noise = rng.integers(0, 256, (1080, 1920, 3), dtype=np.uint8)

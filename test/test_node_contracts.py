@@ -289,7 +289,7 @@ def test_one_huge_frame_does_not_stall_the_stream(peer, start_node):
 
 
 def test_a_frame_size_whose_maps_exceed_the_budget_is_counted_and_not_rectified(peer, start_node):
-    """max_map_memory_mb 20: the 1080p maps (11.9 MiB) fit, a 2560x1440 frame's (21.1 MiB) cannot
+    """max_map_memory_mb 20: the 1080p maps (15.8 MiB) fit, a 2560x1440 frame's (28.1 MiB) cannot
     beside them. That frame still gets its (scaled) CameraInfo, is counted as maps_budget with the
     reason logged, and the configured size keeps being rectified."""
     node = start_node('--ros-args', *SPEC_1080, '-p', 'rectify:=true', '-p', 'max_map_memory_mb:=20')

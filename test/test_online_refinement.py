@@ -52,7 +52,7 @@ def test_streamed_frames_give_a_camera_closer_to_the_truth_than_zero_shot(refine
     fovs = fields_of_view_through_axis(TRUE)
     assert [round(fovs[k]) for k in ('hfov', 'vfov', 'dfov')] == [172, 97, 198]
     room = render(TRUE, 'room', seed=1)[0]
-    refiner = refiner_factory(SPEC, interval=0.2)
+    refiner = refiner_factory(SPEC, interval=0.2, finish_after=2)
     # low priority: the stream comes first (SCHED_IDLE: the worker runs only on an otherwise idle core)
     assert os.getpriority(os.PRIO_PROCESS, refiner.pid) == WORKER_NICE == 19
     assert os.sched_getscheduler(refiner.pid) == os.SCHED_IDLE
@@ -74,8 +74,18 @@ def test_streamed_frames_give_a_camera_closer_to_the_truth_than_zero_shot(refine
     assert record.distortion_model == 'equidistant' and record.camera_name == 'cam'
     np.testing.assert_allclose(record.K, np.diag([2, 2, 1]) @ result.camera.K)
     np.testing.assert_allclose(record.D.ravel(), result.camera.D)
-    assert not refiner.due(time.monotonic() + 100)  # refined: no more frames kept
-    wait_for(lambda: refiner._process.poll() is not None, 10, 'the worker to exit once refined')
+
+    # refined, it goes on: frames that add nothing (black) leave the camera in use, and after
+    # finish_after of them it finishes (no more frames taken, the worker gone)
+    for i in range(2):
+        assert refiner.offer(np.zeros((360, 640), np.uint8), time.monotonic() + 10.0 + i)
+        wait_for(lambda: refiner.status.frames_processed == 2 + i, 60, f'black frame {i + 1} to be processed')
+        status = refiner.status
+        assert status.state == 'refined' and status.cameras_offered == 1 and refiner.take_result() is None, status
+        assert 'not better than the camera in use' in status.reason and status.finished == (i == 1), status
+    assert status.reason.startswith('finished: 2 frames since the camera in use'), status
+    assert not refiner.due(time.monotonic() + 100)
+    wait_for(lambda: refiner._process.poll() is not None, 10, 'the worker to exit once finished')
 
 
 def test_one_frame_is_kept_every_interval_and_the_others_are_not_copied(refiner_factory):
@@ -160,3 +170,42 @@ def test_line_evidence_accumulates_over_the_newest_frames(refiner_factory):
         status = refiner.status
         assert (status.curves, status.frames_used, status.state) == (curves, used, state), status
         assert status.reason and refiner.take_result() is None
+
+
+def test_after_a_refined_camera_only_a_clearly_better_fit_is_offered_and_then_it_finishes(monkeypatch):
+    """The worker's rule, with the gate's answers scripted (uncertainty px, accepted): the first
+    accepted camera is offered; later ones only at <= IMPROVEMENT x the last offered camera's
+    uncertainty; a refused fit keeps the camera in use (state refined); FINISH frames without a
+    better one finish it. Each fit starts from the camera in use."""
+    from zeroshot_calib_ros.core.estimation import refine as refine_module
+    from zeroshot_calib_ros.core.ros_data import online_refinement
+    from zeroshot_calib_ros.core.ros_data.online_refinement import IMPROVEMENT, _Worker
+
+    assert IMPROVEMENT == 0.7
+    zs = zero_shot_camera(SPEC, 640, 360)
+    script = [(None, False), (2.0, True), (1.5, True), (1.39, True), (1.0, False), (1.2, True), (1.0, True)]
+    starts, answers = [], iter(script)
+
+    def scripted(spec, curves, width, height, tolerance, initial=None, solution=None):
+        u, accepted = next(answers)
+        starts.append(initial)
+        camera = KannalaBrandtCamera(zs.fx + len(starts), zs.fy, zs.cx, zs.cy, 640, 360, zs.D)
+        result = refine_module.Refinement(camera, accepted, 'accepted' if accepted else 'too few lines', u, 3.0,
+                                          0, 0, None, None, 0.0, 0.0, zero_shot_camera=zs)
+        return result
+    monkeypatch.setattr(refine_module, 'refine_camera', scripted)
+    worker = _Worker({'spec': SPEC, 'fov_tolerance_deg': 1.0, 'initial': None, 'max_frames': 8, 'finish_after': 3})
+    black = np.zeros((360, 640), np.uint8)
+    got = [worker.frame(black) for _ in script]
+    offered = [a['camera'] is not None for a in got]
+    assert offered == [False, True, False, True, False, False, False]
+    states = [(a['status']['state'], a['status']['cameras_offered'], a['status']['finished']) for a in got]
+    assert states == [('collecting', 0, False), ('refined', 1, False), ('refined', 1, False), ('refined', 2, False),
+                      ('refined', 2, False), ('refined', 2, False), ('refined', 2, True)]
+    assert 'not better than the camera in use (2 px) by 30 %' in got[2]['status']['reason']
+    assert got[4]['status']['reason'] == 'the newest fit is not adopted: too few lines'
+    assert got[6]['status']['reason'].startswith('finished: 3 frames since the camera in use')
+    # each fit starts from the last offered camera (zero-shot's before: no initial)
+    assert starts[0] is None and starts[1] is None
+    assert starts[2].fx == zs.fx + 2 and starts[3].fx == zs.fx + 2 and starts[4].fx == zs.fx + 4
+    assert online_refinement.FINISH_AFTER == 2 * online_refinement.MAX_FRAMES

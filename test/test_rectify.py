@@ -8,7 +8,10 @@ from zeroshot_calib_ros.core import CameraSpec, KannalaBrandtCamera, solve_zero_
 from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.lens.fitting import fit_kannala_brandt
 from zeroshot_calib_ros.core.ros_data.image_frames import ENCODINGS, ActiveCalibration, image_array
-from zeroshot_calib_ros.core.ros_data.rectify import Rectifier, new_camera_matrix
+from zeroshot_calib_ros.core.ros_data.rectify import (Rectifier, convert_maps, map_format_for, new_camera_matrix,
+                                                    rectification_maps)
+
+FLOAT_MAP_TOLERANCE_PX = 1e-3  # float32 steps are 1.2e-4 px at 1024-2048 px (measured: 2.4e-4)
 
 HERO9_W1 = CameraSpec(1920, 1080, 118, 69)
 
@@ -92,19 +95,28 @@ def test_balance_and_fov_scale_are_checked():
         new_camera_matrix(camera, 0.0, 0.0)
 
 
-def test_maps_agree_with_opencv_fisheye_maps_to_fixed_point_precision():
+@pytest.mark.parametrize('map_format', ['fixed', 'float'])
+def test_maps_agree_with_opencv_fisheye_maps_to_fixed_point_precision(map_format):
+    """Our maps from the exact model, in either format, against cv2.fisheye's from the KB fit:
+    fixed point within half a 1/32 px cell per axis (its rounding), float within the fit."""
     solution = solve_zero_shot(HERO9_W1)
     D = fit_kannala_brandt(solution.camera).D
     rectifier = Rectifier(solution.camera, balance=0.5)
-    assert rectifier.map1.dtype == np.int16 and rectifier.map1.shape == (1080, 1920, 2)
     mx, my = cv2.fisheye.initUndistortRectifyMap(solution.K, D, np.eye(3), rectifier.P, (1920, 1080),
                                                  cv2.CV_32FC1)
-    ox, oy = cv2.convertMaps(rectifier.map1, rectifier.map2, cv2.CV_32FC1)
+    maps = rectification_maps(solution.camera, rectifier.P, (1920, 1080), map_format=map_format)
+    if map_format == 'fixed':
+        assert maps[0].dtype == np.int16 and maps[0].shape == (1080, 1920, 2) and maps[1].dtype == np.uint16
+        ox, oy = cv2.convertMaps(maps[0], maps[1], cv2.CV_32FC1)
+        tolerance = 1 / 64 + 1e-3
+    else:
+        assert maps[0].dtype == maps[1].dtype == np.float32 and maps[0].shape == (1080, 1920)
+        ox, oy = maps
+        tolerance = FLOAT_MAP_TOLERANCE_PX
     inside = (mx > 0) & (mx < 1919) & (my > 0) & (my < 1079)
     assert inside.mean() > 0.9
-    # 1/32 px fixed-point cells: rounding moves a point by at most half a cell per axis.
-    assert np.abs(ox - mx)[inside].max() <= 1 / 64 + 1e-3
-    assert np.abs(oy - my)[inside].max() <= 1 / 64 + 1e-3
+    assert np.abs(ox - mx)[inside].max() <= tolerance
+    assert np.abs(oy - my)[inside].max() <= tolerance
 
 
 def test_rectified_image_has_straight_lines():
@@ -148,8 +160,8 @@ def test_every_encoding_is_rectified_channel_by_channel_as_opencv_remaps_it(enco
     """Each supported encoding, as the node receives it (message bytes with row padding, through
     image_array) and rectifies it (ActiveCalibration of a calibration file, balance 1 so there is
     a border): the WHOLE image equals cv2.remap of every channel on its own, with the maps of
-    cv2.fisheye.initUndistortRectifyMap for the file's K, D, P (converted to fixed point as
-    image_proc's): channels in their order, 16 bits kept, float images NaN where no pixel was
+    cv2.fisheye.initUndistortRectifyMap for the file's K, D, P (in the rectifier's format: fixed
+    point as image_proc's, or float where OpenCV remaps that encoding faster): channels in their order, 16 bits kept, float images NaN where no pixel was
     seen (image_proc), other types 0. Textures differ in every channel and use the whole range."""
     from opencv_reference import textured_image
     w, h = 192, 108
@@ -165,7 +177,9 @@ def test_every_encoding_is_rectified_channel_by_channel_as_opencv_remaps_it(enco
 
     mx, my = cv2.fisheye.initUndistortRectifyMap(calibration.K, calibration.D.reshape(4, 1), np.eye(3),
                                                  calibration.P[:3, :3], (w, h), cv2.CV_32FC1)
-    map1, map2 = cv2.convertMaps(mx, my, cv2.CV_16SC2)
+    # in the format the rectifier remapped with (the faster for this encoding: map_format_for)
+    assert rectifier.map_format == map_format_for(channels, cv2.INTER_LINEAR)
+    map1, map2 = convert_maps((mx, my), rectifier.map_format)
     border = float('nan') if dtype.kind == 'f' else 0
     planes = [image] if channels == 1 else [np.ascontiguousarray(image[..., c]) for c in range(channels)]
     expected = [cv2.remap(p, map1, map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=border)
@@ -194,3 +208,43 @@ def test_interpolation_values_are_opencvs_remap_flags():
         expected = cv2.remap(image, rectifier.map1, rectifier.map2, flag, borderMode=cv2.BORDER_CONSTANT,
                              borderValue=0)
         assert np.array_equal(rectifier.rectify(image), expected), value
+
+
+def test_map_format_follows_the_measured_table():
+    """Float maps where OpenCV's remap runs faster with them (nearest always; linear from OpenCV
+    4.11 except 3 channels), fixed point elsewhere; the rectifier builds the one-channel choice."""
+    new, old = (5, 0), (4, 6)
+    assert [map_format_for(c, 1, new) for c in (1, 3, 4)] == ['float', 'fixed', 'float']
+    assert [map_format_for(c, 1, (4, 11)) for c in (1, 3)] == ['float', 'fixed']
+    assert [map_format_for(c, 1, old) for c in (1, 3, 4)] == ['fixed'] * 3
+    assert [map_format_for(c, 0, v) for c in (1, 3) for v in (new, old)] == ['float'] * 4
+    assert [map_format_for(1, i, new) for i in (2, 4)] == ['fixed'] * 2
+    version = tuple(int(x) for x in cv2.__version__.split('.')[:2])
+    camera = solve_zero_shot(CameraSpec(160, 90, 118, 69)).camera
+    assert Rectifier(camera).map_format == ('float' if version >= (4, 11) else 'fixed')
+    assert Rectifier(camera, interpolation=0).map_format == 'float'
+    assert Rectifier(camera, interpolation=2).map_format == 'fixed'
+
+
+@pytest.mark.parametrize('version', [(5, 0), (4, 6)])
+def test_a_stream_that_changes_encoding_is_rectified_with_the_maps_converted(version):
+    """bgr8, mono8, bgra8, bgr8 frames through one rectifier (as the table of either OpenCV
+    wants them): each output equals cv2.remap with the exact maps in the format it asked for
+    (rounded to 1/32 px once they were fixed point)."""
+    camera = solve_zero_shot(CameraSpec(192, 108, 118, 69)).camera
+    rectifier = Rectifier(camera, balance=1.0)
+    rectifier._version = version  # the table of that OpenCV release (the remap below is this one's)
+    exact = rectification_maps(camera, rectifier.P, rectifier.size, map_format='float')
+    rng = np.random.default_rng(5)
+    formats, rounded = [], False
+    for channels in (3, 1, 4, 3):
+        image = rng.integers(0, 256, (108, 192, channels) if channels > 1 else (108, 192), dtype=np.uint8)
+        out = rectifier.rectify(image)
+        wanted = map_format_for(channels, 1, version)
+        assert rectifier.map_format == wanted
+        # once in fixed point, the positions keep its 1/32 px rounding (image_proc's precision)
+        rounded = rounded or wanted == 'fixed'
+        m1, m2 = convert_maps(convert_maps(exact, 'fixed') if rounded else exact, wanted)
+        np.testing.assert_array_equal(out, cv2.remap(image, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
+        formats.append(wanted)
+    assert formats == (['fixed', 'float', 'float', 'fixed'] if version >= (4, 11) else ['fixed'] * 4)

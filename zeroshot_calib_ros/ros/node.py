@@ -863,7 +863,8 @@ class ZeroShotCalibNode(Node):
             return {'refine_state': 'off', 'refine_reason': self._refine_off}
         values = refiner.status.values()
         return {'refine_state': values['state'], 'refine_reason': values['reason'],
-                'refine_frames': values['frames_processed'], 'refine_lines': values['lines'],
+                'refine_frames': values['frames_processed'], 'refine_adopted': values['cameras_offered'],
+                'refine_lines': values['lines'],
                 'refine_coverage': values['coverage'], 'refine_residual_px': values['residual_px'],
                 'refine_uncertainty_px': values['uncertainty_px'],
                 'refine_zero_shot_uncertainty_px': values['zero_shot_uncertainty_px']}

@@ -43,8 +43,10 @@ class FrameSkipped(ValueError):
         self.reason = reason
 
 
-MAP_BYTES_PER_PIXEL = 6
-"""Memory of one pixel's rectification maps: CV_16SC2 (4 bytes) + CV_16UC1 table (2 bytes)."""
+MAP_BYTES_PER_PIXEL = 8
+"""Memory of one pixel's rectification maps at most: two CV_32FC1 maps (8 bytes), or CV_16SC2
+(4 bytes) + CV_16UC1 table (2 bytes) where OpenCV remaps faster with those
+(``rectify.map_format_for``). Budgets count the larger, whichever format a stream ends up using."""
 
 _MAX_SIZES_CACHED = 4
 
@@ -266,7 +268,8 @@ class ActiveCalibration:
 
     @property
     def map_memory_bytes(self) -> int:
-        return sum(map_bytes(*k) for k in self._rectifiers)
+        """Memory the maps hold now (budgets count ``map_bytes``, the most they can hold)."""
+        return sum(r.map_nbytes for r in self._rectifiers.values())
 
     def for_size(self, width: int, height: int,
                  map_threads: Optional[int] = None) -> Tuple[CameraCalibration, Optional[Rectifier]]:

@@ -12,16 +12,21 @@ even a low-priority thread would hold the GIL for most of a fit (tens of seconds
 SciPy at 1080p) and the executor thread would lose frames. Frames go to the worker through its
 stdin (written by a sender thread, so the caller never waits on the pipe), results come back on
 its stdout (read by a reader thread). The worker accumulates the curves of the last
-``max_frames`` kept frames, detects with the current estimate (zero-shot's, or the camera given
-as ``initial``), and after every frame fits all of them; the gate of ``refine_camera`` (zero-shot
-the reference, whatever ``initial`` is) decides. The first accepted camera is the result
-(``take_result``), and the refiner then keeps no more frames.
+``max_frames`` kept frames, detects with the current estimate (zero-shot's, the camera given as
+``initial``, or the last one it offered), and after every frame fits all of them; the gate of
+``refine_camera`` (zero-shot the reference, whatever ``initial`` is) decides. The first accepted
+camera is a result (``take_result``). The refiner then goes on: a later fit is offered only when
+the gate accepts it too and its uncertainty is at most ``IMPROVEMENT`` times the last offered
+camera's (each adoption is a new calibration for every consumer, so a small gain does not make
+one), and after ``FINISH_AFTER`` frames without such a fit it is finished: it keeps no more
+frames and its worker exits (no core is kept busy for a calibration that no longer improves).
 
 States (``status.state``): ``collecting`` (the gate refused so far, fewer than ``max_frames``
 frames seen), ``insufficient`` (``max_frames`` frames seen and still refused: the window slides
-on, newest frames replacing the oldest), ``refined`` (accepted), ``error`` (the last frame
-failed in the worker, which goes on), ``failed`` (the worker is gone: no more refinement) and
-``stopped``. ``reason`` says why, in the gate's words.
+on, newest frames replacing the oldest), ``refined`` (a camera was offered; the reason says
+what the newest fit did, and ``finished`` is set once the refiner stops), ``error`` (the last
+frame failed in the worker, which goes on), ``failed`` (the worker is gone: no more refinement)
+and ``stopped``. ``reason`` says why, in the gate's words.
 
 ROS-free: the node (``zeroshot_calib_ros.ros.node``) owns one while ``refine`` is true.
 """
@@ -51,6 +56,11 @@ DEFAULT_INTERVAL = 2.0
 """Seconds between kept frames (the node's ``refine_interval``)."""
 MAX_FRAMES = 8
 """Kept frames whose curves the fit uses (the newest)."""
+IMPROVEMENT = 0.7
+"""After a first refined camera, a later fit is offered when its uncertainty is at most this
+fraction of the last offered camera's."""
+FINISH_AFTER = 2 * MAX_FRAMES
+"""Frames after the last offered camera without a better one, after which the refiner finishes."""
 WORKER_NICE = 19
 """Niceness of the worker process (with SCHED_IDLE where Linux has it); ZEROSHOT_CALIB_REFINE_NICE
 overrides it (0..19; below 19 the normal policy)."""
@@ -84,6 +94,10 @@ class RefineStatus:
     principal_point_shift_px: float = 0.0
     seconds: float = 0.0
     """Worker time (detection + fit) of the last frame."""
+    cameras_offered: int = 0
+    """Refined cameras offered so far (each one better than the last by ``IMPROVEMENT``)."""
+    finished: bool = False
+    """Refined, and ``FINISH_AFTER`` frames without a better fit since: no more frames taken."""
 
     def values(self) -> dict:
         """Display strings per field (for /diagnostics)."""
@@ -165,7 +179,8 @@ class OnlineRefiner:
 
     def __init__(self, spec: CameraSpec, interval: float = DEFAULT_INTERVAL,
                  initial: Optional[KannalaBrandtCamera] = None, fov_tolerance_deg: float = FOV_TOLERANCE_DEG,
-                 max_frames: int = MAX_FRAMES, command: Optional[Sequence[str]] = None):
+                 max_frames: int = MAX_FRAMES, finish_after: int = FINISH_AFTER,
+                 command: Optional[Sequence[str]] = None):
         self.spec = spec
         self.interval = float(interval)
         self.initial = initial
@@ -193,7 +208,8 @@ class OnlineRefiner:
             return
         _lower_priority(self._process.pid)  # at once, before the worker imports anything
         self._start_message = {'kind': 'start', 'spec': spec, 'fov_tolerance_deg': float(fov_tolerance_deg),
-                               'initial': _camera_tuple(initial), 'max_frames': int(max_frames)}
+                               'initial': _camera_tuple(initial), 'max_frames': int(max_frames),
+                               'finish_after': int(finish_after)}
         self._sender = threading.Thread(target=self._send_loop, name='refine_sender', daemon=True)
         self._reader = threading.Thread(target=self._read_loop, name='refine_reader', daemon=True)
         self._sender.start()
@@ -226,7 +242,7 @@ class OnlineRefiner:
             return dataclasses.replace(self._status)
 
     def take_result(self) -> Optional[RefinedCamera]:
-        """The accepted refinement, once (None before, and after it was taken)."""
+        """The newest refined camera not taken yet, once (None when there is none)."""
         with self._lock:
             result, self._result = self._result, None
             return result
@@ -316,9 +332,10 @@ class OnlineRefiner:
             with self._wake:
                 status.frames_kept = self._status.frames_kept
                 self._status = status
-                if message.get('camera') is not None:
+                if message.get('camera') is not None:  # the newest replaces one not taken yet
                     self._result = RefinedCamera(_camera_from(message['camera']), dataclasses.replace(status),
                                                  self.initial)
+                if status.finished:
                     self._done = True
                     self._wake.notify()  # the sender ends the worker's input: it exits
                 self._busy = False
@@ -355,11 +372,15 @@ class _Worker:
         self.tolerance = start['fov_tolerance_deg']
         self.initial = _camera_from(start['initial'])
         self.max_frames = max(1, int(start['max_frames']))
+        self.finish_after = max(1, int(start.get('finish_after', FINISH_AFTER)))
         self.solution = solve_zero_shot(self.spec, 'auto')
         self.frames = []  # curves of each kept frame, oldest first
         self.count = 0
         self.size = None
         self.camera = None  # the estimate detections use
+        self.offered = None  # (camera, uncertainty px) of the last camera offered
+        self.offers = 0
+        self.since_offer = 0
 
     def frame(self, image: np.ndarray) -> dict:
         from ..estimation.refine import refine_camera, zero_shot_camera
@@ -376,21 +397,45 @@ class _Worker:
         curves = detect_curves(image, camera, image_id=self.count + 1)
         frames = (self.frames + [curves])[-self.max_frames:]
         every = [c for frame in frames for c in frame]
-        result = refine_camera(self.spec, every, width, height, self.tolerance,
-                               initial=camera if self.initial is not None else None, solution=self.solution)
+        start_from = self.offered[0] if self.offered else (camera if self.initial is not None else None)
+        result = refine_camera(self.spec, every, width, height, self.tolerance, initial=start_from,
+                               solution=self.solution)
         self.camera, self.size, self.frames = camera, (width, height), frames  # the frame is evidence now
         self.count += 1
-        if result.accepted:
+        reason, offer = result.reason, result.accepted
+        if self.offered is not None:
+            new, old = result.uncertainty_px, self.offered[1]
+            if offer and not (new is not None and old is not None and new <= IMPROVEMENT * old):
+                offer = False
+                reason = (f'the newest fit ({_px(new)} px uncertainty) is not better than the camera in use '
+                          f'({_px(old)} px) by {100 * (1 - IMPROVEMENT):.0f} %')
+            elif not offer:
+                reason = f'the newest fit is not adopted: {reason}'
+        if offer:
+            self.offered = (result.camera, result.uncertainty_px)
+            self.offers += 1
+            self.since_offer = 0
+            self.camera = result.camera  # later frames are detected with it (the frames' size)
+        elif self.offered is not None:
+            self.since_offer += 1
+        finished = self.offered is not None and self.since_offer >= self.finish_after
+        if finished:
+            reason = (f'finished: {self.since_offer} frames since the camera in use without a fit better by '
+                      f'{100 * (1 - IMPROVEMENT):.0f} % ({reason})')
+        if self.offered is not None:
             state = 'refined'
         else:
             state = 'insufficient' if len(self.frames) >= self.max_frames else 'collecting'
         status = RefineStatus(
-            state, result.reason, 0, self.count, len(self.frames), result.lines_used, len(every),
+            state, reason, 0, self.count, len(self.frames), result.lines_used, len(every),
             float(result.coverage), result.line_residual_px_before, result.line_residual_px_after,
             result.uncertainty_px, result.zero_shot_uncertainty_px, float(result.principal_point_shift_px),
-            time.monotonic() - start)
-        return {'status': dataclasses.asdict(status),
-                'camera': _camera_tuple(result.camera) if result.accepted else None}
+            time.monotonic() - start, self.offers, finished)
+        return {'status': dataclasses.asdict(status), 'camera': _camera_tuple(result.camera) if offer else None}
+
+
+def _px(value) -> str:
+    return '?' if value is None else f'{value:.3g}'
 
 
 def worker_main():

@@ -84,23 +84,74 @@ def _map_threads(rows: int) -> int:
     return max(1, min(os.cpu_count() or 1, -(-rows // _MAP_ROWS_PER_CHUNK)))
 
 
+FLOAT_MAP_KERNELS = (4, 11)
+"""The OpenCV release whose cv2.remap got vectorised kernels for 32-bit float maps (opencv#26348)."""
+
+
+def opencv_version() -> Tuple[int, int]:
+    import cv2
+
+    major, minor = (cv2.__version__.split('.') + ['0'])[:2]
+    return int(major), int(''.join(ch for ch in minor if ch.isdigit()) or 0)
+
+
+def map_format_for(channels: int, interpolation: int, version: Optional[Tuple[int, int]] = None) -> str:
+    """'float' (two CV_32FC1 maps: the exact positions) or 'fixed' (CV_16SC2 + CV_16UC1 table,
+    1/32 px: what cv2.initUndistortRectifyMap gives image_proc), whichever cv2.remap runs faster
+    for images of ``channels`` channels with OpenCV's ``interpolation`` flag.
+
+    Measured on this project's 2-core machine at 1920x1080 (ms per remap, fixed -> float):
+    OpenCV 5.0, linear: mono8 4.8 -> 2.8, mono16 10.1 -> 3.3, 32FC1 7.5 -> 3.0, bgra8 8.8 -> 4.2,
+    but bgr8 7.3 -> 8.7 (its 3-channel kernel is slower); nearest: float faster for every
+    encoding on 5.0 and 4.6 (bgr8 4.0 -> 2.0 and 5.5 -> 4.0); OpenCV 4.6 (Ubuntu 24.04), linear:
+    fixed faster (mono8 6.9 -> 7.6, bgr8 10.5 -> 11.1); cubic and Lanczos: no gain (bgr8 24 -> 28
+    on 5.0). In the node's stream at 1080p mono8 the float maps took the node's highest rate
+    from 82.4 to 122.3 fps (the two alternately in one run: benchmarks/results/float_maps.md).
+
+    ``channels`` 3 keeps fixed point even where float is as fast for 3 channels; OpenCV
+    releases between 4.6 and 4.11 were not measured and get the 4.6 rule."""
+    if interpolation == 0:
+        return 'float'
+    if interpolation == 1 and (version or opencv_version()) >= FLOAT_MAP_KERNELS and channels != 3:
+        return 'float'
+    return 'fixed'
+
+
+def convert_maps(maps: Tuple[np.ndarray, np.ndarray], to: str) -> Tuple[np.ndarray, np.ndarray]:
+    """``maps`` in the format ``to`` ('float' / 'fixed'; float -> fixed is exact to the 1/32 px
+    of the fixed format, fixed -> float keeps those positions)."""
+    import cv2
+
+    is_float = maps[0].dtype == np.float32
+    if is_float == (to == 'float'):
+        return maps
+    return tuple(cv2.convertMaps(maps[0], maps[1], cv2.CV_32FC1 if to == 'float' else cv2.CV_16SC2))
+
+
 def rectification_maps(camera: CameraModel, P: np.ndarray, size: Tuple[int, int],
-                       R: Optional[np.ndarray] = None,
-                       threads: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray]:
-    """Fixed-point maps (CV_16SC2 + CV_16UC1 interpolation table, as cv2.initUndistortRectifyMap
-    gives image_proc) sending each pixel of the rectified image (camera matrix P[:3, :3], rotation
-    R) to where ``camera`` saw it. Pixels whose ray the camera cannot see map outside the image.
+                       R: Optional[np.ndarray] = None, threads: Optional[int] = None,
+                       map_format: str = 'fixed') -> Tuple[np.ndarray, np.ndarray]:
+    """Maps sending each pixel of the rectified image (camera matrix P[:3, :3], rotation R) to
+    where ``camera`` saw it, as ``map_format`` says: 'fixed', CV_16SC2 + CV_16UC1 interpolation
+    table (as cv2.initUndistortRectifyMap gives image_proc), or 'float', two CV_32FC1 maps (x, y).
+    Pixels whose ray the camera cannot see map outside the image.
 
     Rows are computed in chunks of float64 work on ``threads`` threads (default: one per CPU;
     numpy and OpenCV release the GIL, so the chunks run in parallel); the result does not depend
     on the number of threads."""
     import cv2
 
+    if map_format not in ('fixed', 'float'):
+        raise ValueError(f'map_format = {map_format!r} is invalid: allowed: fixed, float')
     width, height = size
     Pinv = np.linalg.inv(np.asarray(P, dtype=float)[:3, :3])
     M = Pinv if R is None else np.asarray(R, dtype=float).T @ Pinv
-    map1 = np.empty((height, width, 2), np.int16)
-    map2 = np.empty((height, width), np.uint16)
+    if map_format == 'float':
+        map1 = np.empty((height, width), np.float32)
+        map2 = np.empty((height, width), np.float32)
+    else:
+        map1 = np.empty((height, width, 2), np.int16)
+        map2 = np.empty((height, width), np.uint16)
     u = np.arange(width, dtype=float)
 
     def chunk(top):
@@ -111,10 +162,12 @@ def rectification_maps(camera: CameraModel, P: np.ndarray, size: Tuple[int, int]
         pix = camera.project(rays).astype(np.float32)
         pix[~np.isfinite(pix)] = -1e4  # unseen: sample the constant border
         np.clip(pix, -1e4, 3e4, out=pix)  # keep within int16 after fixed-point conversion
-        m1, m2 = cv2.convertMaps(np.ascontiguousarray(pix[..., 0]), np.ascontiguousarray(pix[..., 1]),
-                                 cv2.CV_16SC2)
-        map1[top:top + len(v)] = m1
-        map2[top:top + len(v)] = m2
+        rows = slice(top, top + len(v))
+        if map_format == 'float':
+            map1[rows], map2[rows] = pix[..., 0], pix[..., 1]
+            return
+        map1[rows], map2[rows] = cv2.convertMaps(np.ascontiguousarray(pix[..., 0]),
+                                                 np.ascontiguousarray(pix[..., 1]), cv2.CV_16SC2)
 
     tops = range(0, height, _MAP_ROWS_PER_CHUNK)
     threads = _map_threads(height) if threads is None else max(1, int(threads))
@@ -132,8 +185,10 @@ class Rectifier:
     """Undistorts images of ``camera`` into the pinhole camera ``P``; maps are built once.
 
     ``rectify`` writes into a caller-provided buffer when given one, so a stream of frames
-    costs one cv2.remap each and no allocation. ``map_threads``: threads building the maps
-    (default: one per CPU).
+    costs one cv2.remap each and no allocation. The maps are held in one format
+    (``map_format_for``: built as a one-channel image wants them; the first frame with more
+    channels that is faster the other way converts them once, 2-12 ms at 1080p).
+    ``map_threads``: threads building the maps (default: one per CPU).
     """
 
     def __init__(self, camera: CameraModel, balance: float = 0.0, fov_scale: float = 1.0,
@@ -145,7 +200,25 @@ class Rectifier:
         self.P = new_camera_matrix(camera, balance, fov_scale) if P is None else np.asarray(P, float)[:3, :3]
         self.size = (camera.width, camera.height)
         self.interpolation = INTERPOLATIONS[interpolation]
-        self.map1, self.map2 = rectification_maps(camera, self.P, self.size, threads=map_threads)
+        self._version = opencv_version()
+        self._maps = rectification_maps(camera, self.P, self.size, threads=map_threads,
+                                        map_format=map_format_for(1, self.interpolation, self._version))
+
+    @property
+    def map1(self) -> np.ndarray:
+        return self._maps[0]
+
+    @property
+    def map2(self) -> np.ndarray:
+        return self._maps[1]
+
+    @property
+    def map_format(self) -> str:
+        return 'float' if self._maps[0].dtype == np.float32 else 'fixed'
+
+    @property
+    def map_nbytes(self) -> int:
+        return self._maps[0].nbytes + self._maps[1].nbytes
 
     def rectify(self, image: np.ndarray, out: Optional[np.ndarray] = None) -> np.ndarray:
         import cv2  # loaded by the maps already: a dictionary lookup per frame
@@ -153,8 +226,12 @@ class Rectifier:
         h, w = image.shape[:2]
         if (w, h) != self.size:
             raise ValueError(f'image is {w}x{h}, the rectifier was built for {self.size[0]}x{self.size[1]}')
+        wanted = map_format_for(image.shape[2] if image.ndim == 3 else 1, self.interpolation, self._version)
+        if wanted != self.map_format:
+            self._maps = convert_maps(self._maps, wanted)
         # Unseen pixels of a float image (depth) are NaN, as image_proc / image_geometry fill them:
         # a 0 there would read as a valid depth and be blended into the edge pixels.
         border = float('nan') if image.dtype.kind == 'f' else 0
-        return cv2.remap(image, self.map1, self.map2, self.interpolation, dst=out,
+        map1, map2 = self._maps
+        return cv2.remap(image, map1, map2, self.interpolation, dst=out,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=border)
