@@ -108,8 +108,12 @@ def map_format_for(channels: int, interpolation: int, version: Optional[Tuple[in
     on 5.0). In the node's stream at 1080p mono8 the float maps took the node's highest rate
     from 82.4 to 122.3 fps (the two alternately in one run: benchmarks/results/float_maps.md).
 
-    ``channels`` 3 keeps fixed point even where float is as fast for 3 channels; OpenCV
-    releases between 4.6 and 4.11 were not measured and get the 4.6 rule."""
+    ``channels`` 3 keeps fixed point. Remapping bgr8 as BGRA with float maps (cvtColor, remap,
+    cvtColor: 6.2 against 9.9 ms per frame on 5.0) raised the node's highest rate at 1080p
+    1.16x (52.4 against 45.3 fps) but its 30 fps latency from 33.6 to 45.1 ms (three OpenCV
+    thread-pool dispatches per frame instead of one, on cores the publisher and subscriber
+    share; alternately in one run), so it is not done. OpenCV releases between 4.6 and 4.11
+    were not measured and get the 4.6 rule."""
     if interpolation == 0:
         return 'float'
     if interpolation == 1 and (version or opencv_version()) >= FLOAT_MAP_KERNELS and channels != 3:
