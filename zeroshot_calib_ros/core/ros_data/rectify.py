@@ -110,10 +110,10 @@ def map_format_for(channels: int, interpolation: int, version: Optional[Tuple[in
 
     ``channels`` 3 keeps fixed point. Remapping bgr8 as BGRA with float maps (cvtColor, remap,
     cvtColor: 6.2 against 9.9 ms per frame on 5.0) raised the node's highest rate at 1080p
-    1.16x (52.4 against 45.3 fps) but its 30 fps latency from 33.6 to 45.1 ms (three OpenCV
-    thread-pool dispatches per frame instead of one, on cores the publisher and subscriber
-    share; alternately in one run), so it is not done. OpenCV releases between 4.6 and 4.11
-    were not measured and get the 4.6 rule."""
+    1.16x (52.4 against 45.3 fps) but its 30 fps latency from 33.6 to 45.1 ms (probably its
+    three OpenCV thread-pool dispatches per frame instead of one, on cores the publisher and
+    subscriber share; alternately in one run), so it is not done. OpenCV releases between 4.6
+    and 4.11 were not measured and get the 4.6 rule."""
     if interpolation == 0:
         return 'float'
     if interpolation == 1 and (version or opencv_version()) >= FLOAT_MAP_KERNELS and channels != 3:
