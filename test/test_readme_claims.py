@@ -896,6 +896,10 @@ def test_refine_node_figures_are_the_results_file():
     assert f'{on} of {sent_on:,} frames lost with refine on and {off} of {sent_off:,} with it off' in text
     adopted = re.findall(r'\| ([\d.]+) s \(fx', results)
     assert adopted and f"arrived {' s and '.join(adopted)} s into the stream" in text
+    # "one refined calibration adopted in each run": the refiner goes on, the later fits were not adopted
+    counts = re.findall(r'; (\d+) calibration\(s\) adopted in the run', results)
+    assert counts and set(counts) == {'1'} and 'one refined calibration adopted in each run' in text
+    assert 'is not better than the camera in use' in results
 
 
 def test_serialized_path_figures_are_the_results_files():
