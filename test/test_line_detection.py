@@ -324,8 +324,8 @@ def test_inputs():
     grey = detect_curves(cv2.cvtColor(r.image, cv2.COLOR_BGR2GRAY), cam, image_id=7, views=views)
     assert len(colour) >= 20 and len(colour) == len(grey)
     assert all(isinstance(c, Curve) and c.image == 7 for c in colour)
-    for a, b in zip(colour, grey):
-        np.testing.assert_array_equal(a.points, b.points)
+    for a, b in zip(colour, grey):  # the same curves; threaded sums may differ in the last bits (1e-13 px seen)
+        np.testing.assert_allclose(a.points, b.points, rtol=0, atol=1e-9)
         assert a.points.dtype == np.float64 and a.points.shape[1] == 2
     # a mask keeps curves out of the masked part
     mask = np.ones((360, 640), bool)
