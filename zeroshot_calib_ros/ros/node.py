@@ -823,7 +823,7 @@ class ZeroShotCalibNode(Node):
         width, height = basis.calibration.width, basis.calibration.height
         settings = self._settings
         s = result.status
-        from ..core.ros_data.online_refinement import refined_calibration
+        from ..core.ros_data.online_refinement import px_text as px, refined_calibration
 
         try:
             calibration = refined_calibration(result.camera, width, height, settings.balance, settings.fov_scale,
@@ -835,9 +835,6 @@ class ZeroShotCalibNode(Node):
         except (CalibrationFileError, MapBudgetExceeded, ValueError) as exc:
             self.get_logger().warning(f'refined calibration not adopted: {exc}')
             return
-
-        def px(v):
-            return '?' if v is None else f'{v:.3g}'
 
         def text(c):
             return f'K {np.round(c.K, 3).tolist()}\n    {c.distortion_model} D {np.round(c.D.ravel(), 6).tolist()}'

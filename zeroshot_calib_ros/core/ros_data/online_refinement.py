@@ -407,8 +407,8 @@ class _Worker:
             new, old = result.uncertainty_px, self.offered[1]
             if offer and not (new is not None and old is not None and new <= IMPROVEMENT * old):
                 offer = False
-                reason = (f'the newest fit ({_px(new)} px uncertainty) is not better than the camera in use '
-                          f'({_px(old)} px) by {100 * (1 - IMPROVEMENT):.0f} %')
+                reason = (f'the newest fit ({px_text(new)} px uncertainty) is not better than the camera in use '
+                          f'({px_text(old)} px) by {100 * (1 - IMPROVEMENT):.0f} %')
             elif not offer:
                 reason = f'the newest fit is not adopted: {reason}'
         if offer:
@@ -434,7 +434,8 @@ class _Worker:
         return {'status': dataclasses.asdict(status), 'camera': _camera_tuple(result.camera) if offer else None}
 
 
-def _px(value) -> str:
+def px_text(value) -> str:
+    """A pixel figure for a log line or reason ('?' when there is none)."""
     return '?' if value is None else f'{value:.3g}'
 
 
