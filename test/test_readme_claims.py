@@ -1009,11 +1009,11 @@ def test_wide_model_equidistant_fit_errors_are_the_readmes(vfov, a, fit_px):
 
 
 def test_line_refinement_figures_are_the_results_file():
-    """README "Past the spec sheet": the 60-lens room table and the street sentence are the rows of
+    """README "Past the spec sheet": the 60-lens room table and the street and corridor sentences are the rows of
     `benchmarks/results/line_refinement.md` (benchmarks/line_refinement.py --evidence images)."""
     rows = {r[1].split('`')[1]: r for r in markdown_rows((RESULTS / 'line_refinement.md').read_text())
             if len(r) == 11 and r[0] == 'images' and '`' in r[1]}
-    room, street = rows['room'], rows['street']
+    room = rows['room']
     text = ' '.join(README.split())
     zs_median, zs_p90 = room[3].split(' / ')
     median, p90 = room[4].strip('*').split(' / ')
@@ -1021,7 +1021,8 @@ def test_line_refinement_figures_are_the_results_file():
     assert f'| refined (what `refine` returns; zero-shot where refused) | {median} | {p90} | 100 % |' in text
     accepted = room[6].split(' (')[0].replace(' / ', ' of ')
     assert f'{accepted} were accepted ({room[6].split("(")[1].rstrip(")")}' in text and room[7] == '0'
-    s_median, s_p90 = street[4].strip('*').split(' / ')
-    assert street[3] == room[3] and street[7] == '0'
-    assert (f'refined {s_median} / {s_p90} px, {street[6].split(" (")[0].replace(" / ", " of ")} accepted, none worse '
-            'than zero-shot by more than 0.3 px') in text
+    for scene in (rows['street'], rows['corridor']):
+        s_median, s_p90 = scene[4].strip('*').split(' / ')
+        assert scene[3] == room[3] and scene[7] == '0' and scene[8] == '100 % / 100 %'
+        assert (f'refined {s_median} / {s_p90} px, {scene[6].split(" (")[0].replace(" / ", " of ")} accepted, none '
+                'worse than zero-shot by more than 0.3 px') in text
