@@ -122,31 +122,87 @@ def test_the_specs_fovs_pull_the_fit(poor_view):
 
 
 def test_a_wrong_spec_is_reported_not_adopted():
-    """Two well-spread views and hfov 20 degrees too narrow: the fit says the corners disagree
+    """Four well-spread views and hfov 20 degrees too narrow: the fit says the corners disagree
     with the spec, naming each FOV's miss in tolerances (the FOV term's residuals); with the
-    true spec the same views agree and carry no warning."""
-    corners, _ = board_views(TRUTH, 2, seed=11, distance=(0.22, 0.3), spread=0.3)
+    true spec the same views agree and carry no warning. (Four: with boards that may bend,
+    board_fit.BOARD_BEND, two views no longer pin the focal length against the spec: chi^2 9.7,
+    below the 11.8 of the 3-sigma quantile; FOV_AGREEMENT says why no likelihood-ratio test.)"""
+    corners, _ = board_views(TRUTH, 4, seed=11, distance=(0.22, 0.3), spread=0.3)
     truth = true_spec()
     wrong = true_spec(hfov=truth.hfov - 20.0)
-    fit = fit_board(corners, wrong, [0, 1])
+    views = [0, 1, 2, 3]
+    fit = fit_board(corners, wrong, views)
     assert not fit.spec_agrees
     warning = next(w for w in fit.warnings if 'disagree' in w)
     assert 'hfov' in warning and 'vfov' in warning
     chi2 = sum((r / fit.fov_tolerance_deg) ** 2 for r in fit.fov_residuals_deg.values())
     assert chi2 > 11.8  # chi^2 with 2 degrees of freedom beyond its 3-sigma quantile
-    right = fit_board(corners, truth, [0, 1])
+    right = fit_board(corners, truth, views)
     assert right.spec_agrees and right.warnings == []
     assert max(abs(r) for r in right.fov_residuals_deg.values()) < 1.0
+
+
+def bent_view(camera, sag, seed, noise=0.2):
+    """One mid-size tilted view of BOARD bowed by ``sag`` (m, a q^2 bow plus a twist) through
+    ``camera``, Gaussian ``noise`` px. Returns (CornerSet, the board's largest distance from its
+    best plane in m)."""
+    rng = np.random.default_rng(seed)
+    obj = BOARD.object_points()
+    centre = obj.mean(axis=0)
+    s, q = ((obj[:, :2] - centre[:2]) / (np.ptp(obj[:, :2], axis=0) / 2)).T
+    z = 0.7 * q * q + 0.3 * s * q
+    plane = np.c_[np.ones_like(s), s, q]
+    z = z - plane @ np.linalg.lstsq(plane, z, rcond=None)[0]
+    z *= sag / np.abs(z).max()
+    bent = obj + np.outer(z, [0.0, 0.0, 1.0])
+    rvec = np.array([0.35, -0.25, 0.05])
+    R = rodrigues(rvec)
+    ray = camera.unproject(np.array([0.62 * camera.width, 0.42 * camera.height]))
+    t = ray / ray[2] * 0.3 - R @ centre
+    px = camera.project(bent @ R.T + t) + rng.normal(scale=noise, size=(len(obj), 2))
+    assert np.all(np.isfinite(px)) and px.min() > 5 and px[:, 0].max() < camera.width - 5
+    return CornerSet(camera.width, camera.height, BOARD, ['bent.png'], px[None]), sag
+
+
+def test_a_bent_board_is_modelled_not_taken_for_the_camera(monkeypatch):
+    """One view of a board bowed 6 mm (1.4 % of its 43 cm diagonal; the shared set's hand-held
+    boards are 0.2-1.9 % from flat): the MAP with the bend (board_fit.BOARD_BEND) stays within
+    1 px of the truth (zero-shot: 2 px) and reports the sag (within 0.7 mm, and in a note, with
+    the note that one view checks the spec loosely); fitted as flat
+    (BOARD_BEND off) the same corners move the camera more than twice as far from the truth."""
+    from zeroshot_calib_ros.core.estimation import board_fit
+    corners, sag = bent_view(TRUTH, 0.006, seed=3)
+    spec = true_spec()
+    fit = fit_board(corners, spec, [0])
+    assert dense_error(fit.fitted_camera) < 1.0, dense_error(fit.fitted_camera)
+    assert fit.summary()['board_sag_mm'][0] == pytest.approx(1000 * sag, abs=0.7)
+    assert any(n.startswith('board not flat') and 'bent.png 6.' in n for n in fit.notes), fit.notes
+    assert any(n.startswith('one view: the corners check the spec') for n in fit.notes)
+    monkeypatch.setattr(board_fit, 'BOARD_BEND', False)
+    flat = fit_board(corners, spec, [0])
+    assert flat.board_sag_m == [0.0] and not any('board not flat' in n or 'one view' in n for n in flat.notes)
+    assert dense_error(flat.fitted_camera) > 2 * dense_error(fit.fitted_camera), (
+        dense_error(flat.fitted_camera), dense_error(fit.fitted_camera))
+
+
+def test_the_corner_term_recovers_a_known_bend():
+    """Noise-free corners of a board bowed 6 mm through the true camera: with ``bend`` the
+    residuals vanish and ``sag`` is the bow; as flat they do not (more than 0.3 px RMS)."""
+    corners, sag = bent_view(TRUTH, 0.006, seed=1, noise=0.0)
+    bent = CornerTerm(BOARD.object_points(), corners.corners, bend=True)
+    assert bent.rms(TRUTH) < 1e-6
+    assert bent.sag()[0] == pytest.approx(sag, rel=1e-6)
+    assert CornerTerm(BOARD.object_points(), corners.corners).rms(TRUTH) > 0.3
 
 
 @pytest.mark.skipif(not SHARED.is_dir(), reason=f'shared real data not found: {SHARED}')
 def test_shared_set_single_shot_with_the_spec_is_never_worse_than_zero_shot():
     """Done 3 on four images of the shared set, at the default tolerance of 1 degree: those where
     the spec as a start and the line refinement's 2 % shape prior went worst (left-0000, -0011,
-    -0017, -0020). Each image alone with the spec as evidence is not worse than zero-shot alone
-    (Table 3's ZS, no corner) by more than 0.2 px of eq.-20 RMS over all images, and beats the
-    spec as a start on average by more than 1 px. Not asserted: left-0008, the one run of the 24
-    that misses the target at 1 degree (+0.26 px; benchmarks/results/board_with_spec.md)."""
+    -0017, -0020) and left-0008 (a board held by one edge, visibly bowed: with a flat-board model
+    it missed the target by 0.26 px; board_fit.BOARD_BEND). Each image alone with the spec as
+    evidence is not worse than zero-shot alone (Table 3's ZS, no corner) by more than 0.2 px of
+    eq.-20 RMS over all images, and beats the spec as a start on average by more than 1 px."""
     import sys
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'benchmarks'))
     from board_with_spec import shared_set
@@ -156,7 +212,7 @@ def test_shared_set_single_shot_with_the_spec_is_never_worse_than_zero_shot():
     zs, _ = zero_shot_camera(spec, corners.width, corners.height)
     zs_eps = reprojection_error(zs, corners).rms
     evidence, start = [], []
-    for k in (0, 11, 17, 20):
+    for k in (0, 8, 11, 17, 20):
         evidence.append(reprojection_error(fit_board(corners, spec, [k]).camera, corners).rms)
         start.append(reprojection_error(calibrate(corners, 'fc+zs', [k], spec).camera, corners).rms)
     assert max(evidence) <= zs_eps + 0.2, (evidence, zs_eps)

@@ -579,25 +579,28 @@ def test_calibrate_with_a_spec_uses_it_as_evidence_by_default(tmp_path, capsys):
     """`calibrate --single IMG --hfov --vfov` (no --spec-as): the MAP fit, a Kannala-Brandt camera
     written as ROS equidistant with an error bar. Its printed K and D, through OpenCV alone
     (PnP + cv2.fisheye.projectPoints), reproduce the printed eq.-20 error on all images, and the
-    camera is the truth's (f within 1 %, principal point within 3 px)."""
+    camera is the truth's (f within 1 %, principal point within 4 px, zero-shot's being 8.5 px
+    off: the truth's is 6 px off the centre on both axes). view-00: the view whose MAP
+    the gate adopts with boards that may bend (board_fit.BOARD_BEND; the other two keep zero-shot,
+    which test_calibrate_says_when_the_gate_keeps_zero_shot_and_writes_that_camera covers)."""
     from opencv_reference import board_points, eq20_squared_errors, rms
     from test_board_fit import BOARD, TRUTH
     from zeroshot_calib_ros.core.checkerboard.corners import CornerSet
     path, spec_args = board_with_spec_corners(tmp_path)
-    status, out, err = run_main(['calibrate', '--corners', str(path), '--single', 'view-01.png', *spec_args,
+    status, out, err = run_main(['calibrate', '--corners', str(path), '--single', 'view-00.png', *spec_args,
                                  '--json'], capsys)
     assert status == 0, err
     record = json.loads(out)
     assert record['spec_as'] == 'evidence' and record['method'].startswith('MAP')
     assert record['distortion_model'] == 'equidistant' and record['fit_error_px'] == 0.0
     assert record['f'] == pytest.approx(TRUTH.fx, rel=0.01)
-    assert math.hypot(record['cx'] - TRUTH.cx, record['cy'] - TRUTH.cy) < 3.0
+    assert math.hypot(record['cx'] - TRUTH.cx, record['cy'] - TRUTH.cy) < 4.0
     assert record['uncertainty_px'] == record['fit']['uncertainty_px'] and 0 < record['uncertainty_px'] < 10
     corners = CornerSet.load(str(path))
     eps = rms(eq20_squared_errors('equidistant', record['K'], record['D'],
                                   board_points(BOARD.cols, BOARD.rows, BOARD.square), corners.corners))
     assert record['eps_all_px'] == pytest.approx(eps, abs=2e-3)
-    status, out, err = run_main(['calibrate', '--corners', str(path), '--single', 'view-01.png', *spec_args], capsys)
+    status, out, err = run_main(['calibrate', '--corners', str(path), '--single', 'view-00.png', *spec_args], capsys)
     lines = out.splitlines()
     assert status == 0 and any(x.startswith('method    MAP') and 'spec as evidence' in x for x in lines)
     assert f"error bar {record['uncertainty_px']:.2f} px" in out and 'agrees' in out

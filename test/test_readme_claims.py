@@ -1026,3 +1026,36 @@ def test_line_refinement_figures_are_the_results_file():
         assert scene[3] == room[3] and scene[7] == '0' and scene[8] == '100 % / 100 %'
         assert (f'refined {s_median} / {s_p90} px, {scene[6].split(" (")[0].replace(" / ", " of ")} accepted, none '
                 'worse than zero-shot by more than 0.3 px') in text
+
+
+def test_single_shot_with_the_spec_table_is_the_results_file():
+    """README "The spec as evidence": the single-image table (eq. 21, worst run, runs worse than
+    zero-shot alone by > 0.2 px) is the rows of `benchmarks/results/board_with_spec.md`
+    (benchmarks/board_with_spec.py), and the synthetic figures beside it are the runs of
+    `benchmarks/results/board_single_shot.md` (flat boards; boards bent 0.5 %, fitted as bent and
+    as flat)."""
+    rows = {}
+    for r in markdown_rows((RESULTS / 'board_with_spec.md').read_text()):
+        if len(r) == 12:
+            rows.setdefault(r[0], r)  # the file's first table is the run of the code (a flat-board run follows)
+    readme = {r[0]: r for r in markdown_rows(README) if len(r) == 4}
+    zs = next(r for r in markdown_rows((RESULTS / 'board_with_spec.md').read_text()) if r[0].startswith('ZS alone'))
+    text = ' '.join(README.split())
+    assert f'runs worse than zero-shot alone ({float(zs[1]):.2f} px) by > 0.2 px' in text
+    for label, key in (('spec as a start (FC_eq.d.(1)+ZS)', 'FC_eq.d.(1)+ZS: spec as a start'),
+                       ('spec as evidence, +- 1 deg (default)', 'MAP: spec as evidence, tolerance 1 deg'),
+                       ('spec as evidence, +- 0.5 deg', 'MAP: spec as evidence, tolerance 0.5 deg')):
+        ours, theirs = readme[label], rows[key]
+        assert ours[1] == f'{float(theirs[1]):.2f}' and ours[2] == f'{float(theirs[3]):.2f}', (ours, theirs)
+        assert ours[3].split(' (')[0] == theirs[5].split(' / ')[0] + ' of 24', (ours, theirs)
+    runs = {}  # the results file's runs by their command's options: (MAP alone, result) runs worse by > 0.48 px
+    for section in (RESULTS / 'board_single_shot.md').read_text().split('\nCommand: `')[1:]:
+        command = section.split('`')[0]
+        options = tuple(o for o in ('--bend 0.005', '--bend 0.02', '--systematic', '--flat-boards') if o in command)
+        table = markdown_rows(section)
+        worse = [next(r for r in table if r[0].startswith(k))[5].split(' / ')[0]
+                 for k in ('MAP (spec as evidence)', 'fit_board result')]
+        runs.setdefault(options, worse)
+    assert f'cut the runs worse than zero-shot from {runs[()][0]} to {runs[()][1]} of 120' in text
+    assert (f'a flat-board model is worse than zero-shot in {runs[("--bend 0.005", "--flat-boards")][1]} of 120 runs, '
+            f'this one in {runs[("--bend 0.005",)][1]})') in text

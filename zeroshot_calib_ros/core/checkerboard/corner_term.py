@@ -17,6 +17,16 @@ the poses to the parameter vector: the estimator's layouts map a vector to a cam
 term sees only the camera (``core.estimation.problem``); elimination keeps that contract, and a
 single or a few images cost 6 parameters each in a 6 x 6 solve per image.
 
+Bent boards (``bend=True``): each view's board may also sag out of its plane by a quadratic
+z = b1 s^2 + b2 s q + b3 q^2 of the board position (s, q in [-1, 1]), its 3 coefficients
+eliminated with the pose (9 x 9 solves). A board held by hand or printed on card is not flat to
+the tenth of a pixel that the corners measure: 0.5 % of the diagonal (2 mm on a 43 cm board) puts
+the corners of a wide lens a pixel off, and one view cannot tell that from a camera with another
+principal point or distortion. With the bend the corners say nothing about the camera that a
+sag could also explain (the spec and the priors decide there), so a flat board gives a little
+less and a bent one no longer misleads; ``sag()`` reports how bent each board was
+(``board_fit.BOARD_BEND`` has the measurements).
+
 Rejected corners (``weights`` 0) leave both the pose solve and the residuals (their residuals
 are 0). Points the camera cannot project (NaN) count ``invalid_px`` per coordinate.
 
@@ -40,6 +50,20 @@ POSE_TOL = 1e-11
 POSE_ITERATIONS = 30
 
 
+def _bend_basis(obj: np.ndarray) -> np.ndarray:
+    """(M, 3) out-of-plane shapes of a bent board at its points: s^2, s q, q^2 of the board
+    position (s, q in [-1, 1] over the board's span) less their least-squares plane over the
+    points (a plane is the pose's: without it the bend and the pose's distance and tilt trade
+    off, and Gauss-Newton on the poses crawls), times the span's half diagonal (a coefficient is
+    then of the order of the sag it makes, in the board's units)."""
+    lo, span = obj[:, :2].min(axis=0), np.ptp(obj[:, :2], axis=0)
+    s, q = ((obj[:, :2] - lo) / np.where(span > 0, span, 1.0) * 2.0 - 1.0).T
+    shapes = np.stack([s * s, s * q, q * q], axis=1)
+    plane = np.stack([np.ones_like(s), s, q], axis=1)
+    shapes = shapes - plane @ np.linalg.lstsq(plane, shapes, rcond=None)[0]
+    return shapes * (0.5 * float(np.hypot(*span)))
+
+
 class CornerTerm:
     """Pixel residuals of checkerboard corners with the board poses eliminated (module docstring).
 
@@ -51,7 +75,8 @@ class CornerTerm:
     group = 2
 
     def __init__(self, object_points, image_points, sigma: float = 0.5, loss: Optional[str] = 'soft_l1',
-                 loss_scale: float = 3.0, weights=None, invalid_px: float = INVALID_PX, poses=None):
+                 loss_scale: float = 3.0, weights=None, invalid_px: float = INVALID_PX, poses=None,
+                 bend: bool = False):
         self.obj = np.asarray(object_points, dtype=float).reshape(-1, 3)
         self.img = np.asarray(image_points, dtype=float).reshape(-1, len(self.obj), 2)
         if self.img.shape[0] == 0:
@@ -65,19 +90,33 @@ class CornerTerm:
         self.loss = loss
         self.loss_scale = float(loss_scale)
         self.invalid_px = float(invalid_px)
-        self._poses = None if poses is None else np.asarray(poses, dtype=float).reshape(self.n, 6).copy()
+        self.bend = bool(bend)
+        self._bend_basis = _bend_basis(self.obj) if self.bend else np.zeros((self.m, 0))
+        self.k = 6 + self._bend_basis.shape[1]
+        if poses is not None:  # (n, 6) poses of a flat board start a bent one flat
+            poses = np.asarray(poses, dtype=float).reshape(self.n, -1)
+            poses = np.hstack([poses[:, :6], np.zeros((self.n, self.k - 6))]) if poses.shape[1] != self.k else poses.copy()
+        self._poses = poses
 
     def copy(self, sigma: Optional[float] = None, weights=None) -> 'CornerTerm':
         """The same corners with another sigma / weights (and the current poses as the start)."""
         return CornerTerm(self.obj, self.img, self.sigma if sigma is None else sigma, self.loss,
                           self.loss_scale, self.weights if weights is None else weights, self.invalid_px,
-                          self._poses)
+                          self._poses, self.bend)
 
     # -- poses ----------------------------------------------------------------------------------
+    def _points(self, poses):
+        """(K, M, 3) the board points of ``poses`` (K, k) in their camera frames."""
+        obj = self.obj
+        if self.bend:
+            obj = obj + np.concatenate([np.zeros((len(poses), self.m, 2)),
+                                        (poses[:, 6:] @ self._bend_basis.T)[..., None]], axis=-1)
+        return transform(poses[:, :3], poses[:, 3:6], obj)
+
     def _raw(self, camera, poses):
-        """(K, M, 2) detected minus projected through ``poses`` (K, 6), weighted, NaN kept."""
+        """(K, M, 2) detected minus projected through ``poses`` (K, k), weighted, NaN kept."""
         with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
-            projected = camera.project(transform(poses[:, :3], poses[:, 3:], self.obj))
+            projected = camera.project(self._points(poses))
         return (self.img - projected) * self.weights[..., None]
 
     def _penalised(self, camera, poses):
@@ -88,12 +127,13 @@ class CornerTerm:
         if self._poses is not None:
             return self._poses.copy()
         found = board_poses(camera, self.obj, self.img)
-        return np.hstack([found.rvecs, found.tvecs])
+        return np.hstack([found.rvecs, found.tvecs, np.zeros((self.n, self.k - 6))])
 
     def solve_poses(self, camera: CameraModel) -> np.ndarray:
-        """(n, 6) rvec, tvec of every image minimising its pixel residuals through ``camera``."""
+        """(n, k) rvec, tvec (and with ``bend`` the 3 bend coefficients) of every image minimising
+        its pixel residuals through ``camera``."""
         poses = self._start_poses(camera)
-        r = self._penalised(camera, poses).reshape(self.n, -1)
+        r = self._penalised_rows(camera, poses, np.arange(self.n))
         cost = np.sum(r * r, axis=1)
         active = np.ones(self.n, dtype=bool)
         for _ in range(POSE_ITERATIONS):
@@ -101,20 +141,21 @@ class CornerTerm:
             if idx.size == 0:
                 break
             p = poses[idx]
+            k = self.k
             h = 1e-6 * np.maximum(1.0, np.abs(p))
-            plus = p[:, None, :] + np.eye(6)[None] * h[:, None, :]
-            minus = p[:, None, :] - np.eye(6)[None] * h[:, None, :]
-            both = np.concatenate([plus, minus], axis=1).reshape(-1, 6)
+            plus = p[:, None, :] + np.eye(k)[None] * h[:, None, :]
+            minus = p[:, None, :] - np.eye(k)[None] * h[:, None, :]
+            both = np.concatenate([plus, minus], axis=1).reshape(-1, k)
             img = self.img[idx]
             with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
-                proj = camera.project(transform(both[:, :3], both[:, 3:], self.obj)).reshape(idx.size, 12, self.m, 2)
+                proj = camera.project(self._points(both)).reshape(idx.size, 2 * k, self.m, 2)
             w = self.weights[idx][:, None, :, None]
             res = np.where(np.isfinite(proj), (img[:, None] - proj) * w, self.invalid_px)
-            J = ((res[:, :6] - res[:, 6:]) / (2 * h[:, :, None, None])).reshape(idx.size, 6, -1)
-            J = np.swapaxes(J, 1, 2)  # (k, 2M, 6): d residual / d pose
+            J = ((res[:, :k] - res[:, k:]) / (2 * h[:, :, None, None])).reshape(idx.size, k, -1)
+            J = np.swapaxes(J, 1, 2)  # (views, 2M, k): d residual / d pose
             A = np.swapaxes(J, 1, 2) @ J
             g = (np.swapaxes(J, 1, 2) @ r[idx][..., None])[..., 0]
-            A = A + 1e-12 * np.einsum('kii->ki', A)[:, :, None] * np.eye(6)
+            A = A + 1e-12 * np.einsum('kii->ki', A)[:, :, None] * np.eye(k)
             try:
                 step = -np.linalg.solve(A, g[..., None])[..., 0]
             except np.linalg.LinAlgError:
@@ -135,7 +176,7 @@ class CornerTerm:
                     break
                 scale = np.where(done, scale, 0.5 * scale)
             tol = POSE_TOL * np.c_[np.ones((idx.size, 3)),
-                                   np.repeat(np.maximum(1.0, np.linalg.norm(p[:, 3:], axis=1))[:, None], 3, 1)]
+                                   np.repeat(np.maximum(1.0, np.linalg.norm(p[:, 3:6], axis=1))[:, None], k - 3, 1)]
             small = np.all(np.abs(scale[:, None] * step) <= tol, axis=1)
             active[idx[small | ~done]] = False
         self._poses = poses.copy()
@@ -143,7 +184,7 @@ class CornerTerm:
 
     def _penalised_rows(self, camera, poses, idx):
         with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
-            projected = camera.project(transform(poses[:, :3], poses[:, 3:], self.obj))
+            projected = camera.project(self._points(poses))
         r = (self.img[idx] - projected) * self.weights[idx][..., None]
         return np.where(np.isfinite(r), r, self.invalid_px).reshape(len(idx), -1)
 
@@ -153,7 +194,7 @@ class CornerTerm:
         rejected corners included (unweighted), so that they can be judged."""
         poses = self.solve_poses(camera)
         with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
-            projected = camera.project(transform(poses[:, :3], poses[:, 3:], self.obj))
+            projected = camera.project(self._points(poses))
         return self.img - projected
 
     def residuals(self, camera: CameraModel) -> np.ndarray:
@@ -191,8 +232,25 @@ class CornerTerm:
 
     @property
     def poses(self) -> Optional[np.ndarray]:
-        """(n, 6) the poses of the last evaluation (None before the first)."""
-        return None if self._poses is None else self._poses.copy()
+        """(n, 6) rvec, tvec of the last evaluation (None before the first)."""
+        return None if self._poses is None else self._poses[:, :6].copy()
+
+    @property
+    def bends(self) -> Optional[np.ndarray]:
+        """(n, 3) the bend coefficients of every board (``_bend_basis``) of the last evaluation;
+        None before the first or without ``bend``."""
+        return None if self._poses is None or not self.bend else self._poses[:, 6:].copy()
+
+    def sag(self) -> np.ndarray:
+        """(n,) how far each board of the last evaluation is from flat: the largest distance of a
+        corner from the plane that fits the bent board's corners best, in the board's units
+        (metres); zeros without ``bend``."""
+        if self._poses is None or not self.bend:
+            return np.zeros(self.n)
+        z = self._poses[:, 6:] @ self._bend_basis.T  # (n, M)
+        A = np.c_[np.ones(self.m), self.obj[:, :2]]
+        plane = np.linalg.lstsq(A, z.T, rcond=None)[0]
+        return np.abs(z - (A @ plane).T).max(axis=1)
 
     @property
     def corners_used(self) -> int:
