@@ -902,6 +902,28 @@ def test_refine_node_figures_are_the_results_file():
     assert 'is not better than the camera in use' in results
 
 
+def test_serialized_path_rerun_figures_are_its_results_file():
+    """README "Serialized frame path": the sentence on the three-round rerun is
+    `benchmarks/results/serialized_path_rerun.md` / `.json` (its relay rounds, both encodings'
+    targets, the previous node)."""
+    text = ' '.join(readme_section('Serialized frame path').split())
+    rows = markdown_rows((RESULTS / 'serialized_path_rerun.md').read_text())
+    throughput = {r[1]: r for r in rows if len(r) == 15 and r[0] == '1920x1080'}
+    ratio = {r[1]: r for r in rows if len(r) == 8 and r[0] == '1920x1080'}
+    raw = json.loads((RESULTS / 'serialized_path_rerun.json').read_text())
+    assert raw['rounds'] == 3 and '--rounds 3' in (RESULTS / 'serialized_path_rerun.md').read_text()
+    relay = next(r for r in raw['throughput'] if r['encoding'] == 'bgr8')['relay']['max_rates']
+    assert f"bgr8 rounds: {relay[0]:.1f}, {relay[1]:.1f} and {relay[2]:.1f} fps" in text
+    mono, bgr = throughput['mono8'], throughput['bgr8']
+    assert mono[7] == 'yes / yes' and mono[11] == 'yes' and ratio['mono8'][7] == 'yes'
+    assert (f"mono8 met every target again ({mono[4]} ms against {mono[6].split('/')[0].strip()}, {mono[9]} fps "
+            f"against {mono[10]}, {ratio['mono8'][4]} the previous node)") in text
+    assert bgr[11] == 'yes' and bgr[7].startswith('**no**') and ratio['bgr8'][7] == '**no**'
+    assert (f"bgr8 met the rate ({bgr[9]} fps against {bgr[10]}) but missed the latency ({bgr[4]} ms against "
+            f"{bgr[6].split('/')[0].strip()}; the previous node {bgr[14].split('/')[0].strip()}) and was "
+            f"{ratio['bgr8'][4]} the previous node") in text
+
+
 def test_serialized_path_figures_are_the_results_files():
     """README "Serialized frame path (issue 14)": the table is `benchmarks/results/serialized_path.md`
     (benchmarks/rectify_throughput.py with the previous node as baseline, same run), the sentences
