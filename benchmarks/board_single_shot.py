@@ -110,10 +110,10 @@ def board_view(camera, kind, rng, noise, systematic, attempts=400, bend=0.0):
         R = np.stack([x, y, z], axis=1) @ R_tilt
         R = R @ rodrigues(np.array([0.0, 0.0, rng.uniform(-0.3, 0.3)]))
         t = ray * distance - R @ centre
+        s = (obj[:, 0] - centre[0]) / (extent / 2)  # the board position, -1..1
+        q = (obj[:, 1] - centre[1]) / (float(np.ptp(obj[:, 1])) / 2)
         board = obj
         if bend > 0:  # a board not flat: a random quadratic sag, ``bend`` of the board's diagonal at most
-            s = (obj[:, 0] - centre[0]) / (extent / 2)
-            q = (obj[:, 1] - centre[1]) / (float(np.ptp(obj[:, 1])) / 2)
             sag = np.stack([s * s, s * q, q * q], axis=1) @ rng.normal(size=3)
             sag -= sag.mean()
             board = obj + np.outer(sag * bend * float(np.hypot(*np.ptp(obj[:, :2], axis=0))) / np.abs(sag).max(),
@@ -127,8 +127,6 @@ def board_view(camera, kind, rng, noise, systematic, attempts=400, bend=0.0):
             continue
         px = px + rng.normal(scale=noise, size=px.shape)
         if systematic > 0:
-            s = (obj[:, 0] - centre[0]) / (extent / 2)
-            q = (obj[:, 1] - centre[1]) / (float(np.ptp(obj[:, 1])) / 2)
             basis = np.stack([s * s, s * q, q * q, s, q], axis=1)
             field = basis @ rng.normal(size=(5, 2))
             field -= field.mean(axis=0)

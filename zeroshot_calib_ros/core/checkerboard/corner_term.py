@@ -108,9 +108,8 @@ class CornerTerm:
     def _points(self, poses):
         """(K, M, 3) the board points of ``poses`` (K, k) in their camera frames."""
         obj = self.obj
-        if self.bend:
-            obj = obj + np.concatenate([np.zeros((len(poses), self.m, 2)),
-                                        (poses[:, 6:] @ self._bend_basis.T)[..., None]], axis=-1)
+        if self.bend:  # each view's board raised out of its plane (z) by its sag
+            obj = obj + (poses[:, 6:] @ self._bend_basis.T)[..., None] * np.array([0.0, 0.0, 1.0])
         return transform(poses[:, :3], poses[:, 3:6], obj)
 
     def _raw(self, camera, poses):
@@ -247,10 +246,8 @@ class CornerTerm:
         (metres); zeros without ``bend``."""
         if self._poses is None or not self.bend:
             return np.zeros(self.n)
-        z = self._poses[:, 6:] @ self._bend_basis.T  # (n, M)
-        A = np.c_[np.ones(self.m), self.obj[:, :2]]
-        plane = np.linalg.lstsq(A, z.T, rcond=None)[0]
-        return np.abs(z - (A @ plane).T).max(axis=1)
+        # the basis has no plane part over the corners (``_bend_basis``): the sag is its height
+        return np.abs(self._poses[:, 6:] @ self._bend_basis.T).max(axis=1)
 
     @property
     def corners_used(self) -> int:
