@@ -8,8 +8,16 @@ from zeroshot_calib_ros.core import CameraSpec, KannalaBrandtCamera, solve_zero_
 from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.lens.fitting import fit_kannala_brandt
 from zeroshot_calib_ros.core.ros_data.image_frames import ENCODINGS, ActiveCalibration, image_array
-from zeroshot_calib_ros.core.ros_data.rectify import (Rectifier, convert_maps, map_format_for, new_camera_matrix,
+from zeroshot_calib_ros.core.ros_data.rectify import (Rectifier, map_format_for, new_camera_matrix,
+                                                     pads_to_four_channels,
                                                     rectification_maps)
+
+def convert_maps(maps, to):
+    """``maps`` as 'float' (two CV_32FC1) or 'fixed' (CV_16SC2 + CV_16UC1), as cv2.convertMaps gives them."""
+    if (maps[0].dtype == np.float32) == (to == 'float'):
+        return maps
+    return tuple(cv2.convertMaps(maps[0], maps[1], cv2.CV_32FC1 if to == 'float' else cv2.CV_16SC2))
+
 
 FLOAT_MAP_TOLERANCE_PX = 1e-3  # float32 steps are 1.2e-4 px at 1024-2048 px (measured: 2.4e-4)
 
@@ -177,8 +185,8 @@ def test_every_encoding_is_rectified_channel_by_channel_as_opencv_remaps_it(enco
 
     mx, my = cv2.fisheye.initUndistortRectifyMap(calibration.K, calibration.D.reshape(4, 1), np.eye(3),
                                                  calibration.P[:3, :3], (w, h), cv2.CV_32FC1)
-    # in the format the rectifier remapped with (the faster for this encoding: map_format_for)
-    assert rectifier.map_format == map_format_for(channels, cv2.INTER_LINEAR)
+    # in the format the rectifier remapped with (the faster on this OpenCV: map_format_for)
+    assert rectifier.map_format == map_format_for(cv2.INTER_LINEAR)
     map1, map2 = convert_maps((mx, my), rectifier.map_format)
     border = float('nan') if dtype.kind == 'f' else 0
     planes = [image] if channels == 1 else [np.ascontiguousarray(image[..., c]) for c in range(channels)]
@@ -212,13 +220,15 @@ def test_interpolation_values_are_opencvs_remap_flags():
 
 def test_map_format_follows_the_measured_table():
     """Float maps where OpenCV's remap runs faster with them (nearest always; linear from OpenCV
-    4.11 except 3 channels), fixed point elsewhere; the rectifier builds the one-channel choice."""
+    4.11, 3-channel images padded to 4 there), fixed point elsewhere; the rectifier builds the
+    one-channel choice."""
     new, old = (5, 0), (4, 6)
-    assert [map_format_for(c, 1, new) for c in (1, 3, 4)] == ['float', 'fixed', 'float']
-    assert [map_format_for(c, 1, (4, 11)) for c in (1, 3)] == ['float', 'fixed']
-    assert [map_format_for(c, 1, old) for c in (1, 3, 4)] == ['fixed'] * 3
-    assert [map_format_for(c, 0, v) for c in (1, 3) for v in (new, old)] == ['float'] * 4
-    assert [map_format_for(1, i, new) for i in (2, 4)] == ['fixed'] * 2
+    assert [map_format_for(1, v) for v in (new, (4, 11), old)] == ['float', 'float', 'fixed']
+    assert [map_format_for(0, v) for v in (new, old)] == ['float'] * 2
+    assert [map_format_for(i, v) for i in (2, 4) for v in (new, old)] == ['fixed'] * 4
+    assert [pads_to_four_channels(c, 1, new) for c in (1, 3, 4)] == [False, True, False]
+    assert pads_to_four_channels(3, 1, (4, 11)) and not pads_to_four_channels(3, 1, old)
+    assert not any(pads_to_four_channels(3, i, new) for i in (0, 2, 4))
     version = tuple(int(x) for x in cv2.__version__.split('.')[:2])
     camera = solve_zero_shot(CameraSpec(160, 90, 118, 69)).camera
     assert Rectifier(camera).map_format == ('float' if version >= (4, 11) else 'fixed')
@@ -227,24 +237,84 @@ def test_map_format_follows_the_measured_table():
 
 
 @pytest.mark.parametrize('version', [(5, 0), (4, 6)])
-def test_a_stream_that_changes_encoding_is_rectified_with_the_maps_converted(version):
-    """bgr8, mono8, bgra8, bgr8 frames through one rectifier (as the table of either OpenCV
-    wants them): each output equals cv2.remap with the exact maps in the format it asked for
-    (rounded to 1/32 px once they were fixed point)."""
+@pytest.mark.parametrize('dtype', [np.uint8, np.uint16])
+def test_three_channel_frames_padded_to_four_reuse_their_buffers_and_stay_exact(version, dtype):
+    """Where 3-channel images are remapped as 4 (OpenCV 4.11+, linear), every frame equals
+    cv2.remap of the 3-channel image with the same maps, the two 4-channel working frames are
+    allocated once for a stream (no allocation per frame) and follow a change of size or depth;
+    on OpenCV 4.6's rule nothing is padded and no working frame is held. Two threads rectifying
+    at once never share working frames (each result is its own image's)."""
     camera = solve_zero_shot(CameraSpec(192, 108, 118, 69)).camera
     rectifier = Rectifier(camera, balance=1.0)
-    rectifier._version = version  # the table of that OpenCV release (the remap below is this one's)
+    rectifier._version = version
+    rng = np.random.default_rng(7)
+    top = np.iinfo(dtype).max
+    images = [rng.integers(0, top, (108, 192, 3)).astype(dtype) for _ in range(4)]
+    expected = [cv2.remap(i, rectifier.map1, rectifier.map2, rectifier.interpolation,
+                          borderMode=cv2.BORDER_CONSTANT) for i in images]
+    padded = version >= (4, 11)
+    held = None
+    for image, want in zip(images, expected):
+        out = np.empty_like(image)
+        assert rectifier.rectify(image, out=out) is out
+        np.testing.assert_array_equal(out, want)
+        buffers = [id(a) for pair in rectifier._four_channel_buffers for a in pair]
+        held = held or buffers
+        assert buffers == held and len(buffers) == (2 if padded else 0)
+    assert rectifier.frame_buffer_nbytes == (2 * 108 * 192 * 4 * np.dtype(dtype).itemsize if padded else 0)
+    if not padded:
+        return
+    # mono frames in between leave the working frames alone; a deeper frame gets its own
+    np.testing.assert_array_equal(rectifier.rectify(images[0][..., 0].copy()),
+                                  cv2.remap(images[0][..., 0].copy(), rectifier.map1, rectifier.map2, 1,
+                                            borderMode=cv2.BORDER_CONSTANT))
+    other = (images[1].astype(np.uint32) * 3 // 2).astype(np.uint16 if dtype == np.uint8 else np.uint8)
+    np.testing.assert_array_equal(rectifier.rectify(other), cv2.remap(other, rectifier.map1, rectifier.map2, 1,
+                                                                      borderMode=cv2.BORDER_CONSTANT))
+    assert rectifier._four_channel_buffers[0][0].dtype == other.dtype
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(lambda k: rectifier.rectify(images[k % 4]), range(200)))
+    for k, result in enumerate(results):
+        np.testing.assert_array_equal(result, expected[k % 4])
+
+
+@pytest.mark.parametrize('version', [(5, 0), (4, 6)])
+def test_a_stream_that_changes_encoding_is_rectified_with_one_set_of_maps(version):
+    """bgr8, mono8, bgra8, bgr8 frames through one rectifier (either OpenCV's rule): each output
+    equals cv2.remap with the exact maps in the one format that OpenCV's remap is fastest with
+    (rounded to 1/32 px where that is fixed point); no frame converts the maps."""
+    camera = solve_zero_shot(CameraSpec(192, 108, 118, 69)).camera
+    rectifier = Rectifier(camera, balance=1.0)
+    rectifier._version = version  # the rule of that OpenCV release (the remap below is this one's)
     exact = rectification_maps(camera, rectifier.P, rectifier.size, map_format='float')
+    expected_maps = convert_maps(exact, rectifier.map_format)
+    maps_before = rectifier.map1
     rng = np.random.default_rng(5)
-    formats, rounded = [], False
     for channels in (3, 1, 4, 3):
         image = rng.integers(0, 256, (108, 192, channels) if channels > 1 else (108, 192), dtype=np.uint8)
         out = rectifier.rectify(image)
-        wanted = map_format_for(channels, 1, version)
-        assert rectifier.map_format == wanted
-        # once in fixed point, the positions keep its 1/32 px rounding (image_proc's precision)
-        rounded = rounded or wanted == 'fixed'
-        m1, m2 = convert_maps(convert_maps(exact, 'fixed') if rounded else exact, wanted)
-        np.testing.assert_array_equal(out, cv2.remap(image, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
-        formats.append(wanted)
-    assert formats == (['fixed', 'float', 'float', 'fixed'] if version >= (4, 11) else ['fixed'] * 4)
+        assert rectifier.map1 is maps_before
+        np.testing.assert_array_equal(out, cv2.remap(image, *expected_maps, cv2.INTER_LINEAR,
+                                                     borderMode=cv2.BORDER_CONSTANT))
+
+
+def test_remap_kernels_benchmark_sample_reports_every_candidate_and_the_rule_in_force(capsys):
+    """benchmarks/remap_kernels.py on one tiny frame per encoding (the results file is its full
+    sweep): a row per candidate, the Rectifier's own call among them, and the rule this OpenCV
+    gets (float maps and padding from 4.11, fixed point and no padding before)."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'benchmarks'))
+    import remap_kernels
+    remap_kernels.main(['--sizes', '96x54', '--rounds', '2', '--paced-rounds', '1'])
+    out = capsys.readouterr().out
+    rows = {tuple(c.strip() for c in line.strip('|').split('|')[1:3]) for line in out.splitlines()
+            if line.startswith('| 96x54')}
+    three = {'3 ch, fixed maps', '3 ch, float maps', 'padded to 4, float maps', 'padded to 4, fixed maps',
+             'Rectifier.rectify'}
+    assert rows == {('bgr8', c) for c in three} | {('bgr16', c) for c in three} | \
+        {('mono8', c) for c in ('1 ch, fixed maps', '1 ch, float maps', 'Rectifier.rectify')}
+    new = tuple(int(x) for x in cv2.__version__.split('.')[:2]) >= (4, 11)
+    assert (f'The Rectifier here: {"float" if new else "fixed"} maps; 3 channels padded to 4: '
+            f'{"yes" if new else "no"}.') in out

@@ -572,7 +572,8 @@ class ZeroShotCalibNode(Node):
                   'fx': self._active.calibration.K[0, 0], 'qos_reliability': self._reliability.name,
                   'pending_generation': pending.active.generation if pending else '',
                   'maps_build_ms': f'{self._maps_build_ms:.1f}',
-                  'map_memory_mb': f'{self._active.map_memory_bytes / 2**20:.1f}', **self._refine_values_text(),
+                  'map_memory_mb': f'{self._active.map_memory_bytes / 2**20:.1f}',
+                  'frame_buffer_mb': f'{self._active.frame_buffer_bytes / 2**20:.1f}', **self._refine_values_text(),
                   **self._stats}
         if values['refine_state'] == 'failed':
             status.level = DiagnosticStatus.WARN

@@ -46,7 +46,7 @@ class FrameSkipped(ValueError):
 MAP_BYTES_PER_PIXEL = 8
 """Memory of one pixel's rectification maps at most: two CV_32FC1 maps (8 bytes), or CV_16SC2
 (4 bytes) + CV_16UC1 table (2 bytes) where OpenCV remaps faster with those
-(``rectify.map_format_for``). Budgets count the larger, whichever format a stream ends up using."""
+(``rectify.map_format_for``). Budgets count the larger, whichever OpenCV the node runs on."""
 
 _MAX_SIZES_CACHED = 4
 
@@ -270,6 +270,11 @@ class ActiveCalibration:
     def map_memory_bytes(self) -> int:
         """Memory the maps hold now (budgets count ``map_bytes``, the most they can hold)."""
         return sum(r.map_nbytes for r in self._rectifiers.values())
+
+    @property
+    def frame_buffer_bytes(self) -> int:
+        """Memory of the rectifiers' working frames (3-channel images padded to 4 channels)."""
+        return sum(r.frame_buffer_nbytes for r in self._rectifiers.values())
 
     def for_size(self, width: int, height: int,
                  map_threads: Optional[int] = None) -> Tuple[CameraCalibration, Optional[Rectifier]]:

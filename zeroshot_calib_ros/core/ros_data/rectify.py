@@ -95,41 +95,61 @@ def opencv_version() -> Tuple[int, int]:
     return int(major), int(''.join(ch for ch in minor if ch.isdigit()) or 0)
 
 
-def map_format_for(channels: int, interpolation: int, version: Optional[Tuple[int, int]] = None) -> str:
+def map_format_for(interpolation: int, version: Optional[Tuple[int, int]] = None) -> str:
     """'float' (two CV_32FC1 maps: the exact positions) or 'fixed' (CV_16SC2 + CV_16UC1 table,
     1/32 px: what cv2.initUndistortRectifyMap gives image_proc), whichever cv2.remap runs faster
-    for images of ``channels`` channels with OpenCV's ``interpolation`` flag.
+    with OpenCV's ``interpolation`` flag, for every encoding (3-channel images with linear
+    interpolation on OpenCV 4.11 and later are remapped as 4 channels: ``pads_to_four_channels``).
 
     Measured on this project's 2-core machine at 1920x1080 (ms per remap, fixed -> float):
-    OpenCV 5.0, linear: mono8 4.8 -> 2.8, mono16 10.1 -> 3.3, 32FC1 7.5 -> 3.0, bgra8 8.8 -> 4.2,
-    but bgr8 7.3 -> 8.7 (its 3-channel kernel is slower); nearest: float faster for every
-    encoding on 5.0 and 4.6 (bgr8 4.0 -> 2.0 and 5.5 -> 4.0); OpenCV 4.6 (Ubuntu 24.04), linear:
-    fixed faster (mono8 6.9 -> 7.6, bgr8 10.5 -> 11.1); cubic and Lanczos: no gain (bgr8 24 -> 28
-    on 5.0). In the node's stream at 1080p mono8 the float maps took the node's highest rate
-    from 82.4 to 122.3 fps (the two alternately in one run: benchmarks/results/float_maps.md).
-
-    ``channels`` 3 keeps fixed point. Remapping bgr8 as BGRA with float maps (cvtColor, remap,
-    cvtColor: 6.2 against 9.9 ms per frame on 5.0) raised the node's highest rate at 1080p
-    1.16x (52.4 against 45.3 fps) but its 30 fps latency from 33.6 to 45.1 ms (probably its
-    three OpenCV thread-pool dispatches per frame instead of one, on cores the publisher and
-    subscriber share; alternately in one run), so it is not done. OpenCV releases between 4.6
-    and 4.11 were not measured and get the 4.6 rule."""
+    OpenCV 5.0, linear: mono8 4.8 -> 2.8, mono16 10.1 -> 3.3, 32FC1 7.5 -> 3.0, bgra8 8.8 -> 4.2;
+    nearest: float faster for every encoding on 5.0 and 4.6 (bgr8 4.0 -> 2.0 and 5.5 -> 4.0);
+    OpenCV 4.6 (Ubuntu 24.04), linear: fixed faster (mono8 6.9 -> 7.6, bgr8 10.5 -> 11.1);
+    cubic and Lanczos: no gain (bgr8 24 -> 28 on 5.0). In the node's stream at 1080p mono8 the
+    float maps took the node's highest rate from 82.4 to 122.3 fps (the two alternately in one
+    run: benchmarks/results/float_maps.md). OpenCV releases between 4.6 and 4.11 were not
+    measured and get the 4.6 rule."""
     if interpolation == 0:
         return 'float'
-    if interpolation == 1 and (version or opencv_version()) >= FLOAT_MAP_KERNELS and channels != 3:
+    if interpolation == 1 and (version or opencv_version()) >= FLOAT_MAP_KERNELS:
         return 'float'
     return 'fixed'
 
 
-def convert_maps(maps: Tuple[np.ndarray, np.ndarray], to: str) -> Tuple[np.ndarray, np.ndarray]:
-    """``maps`` in the format ``to`` ('float' / 'fixed'; float -> fixed is exact to the 1/32 px
-    of the fixed format, fixed -> float keeps those positions)."""
+def pads_to_four_channels(channels: int, interpolation: int, version: Optional[Tuple[int, int]] = None) -> bool:
+    """Whether a 3-channel image is remapped as 4 channels (cvtColor to BGRA, remap, cvtColor back;
+    the same values to the bit, every channel interpolated on its own either way): from OpenCV
+    4.11, whose float-map kernels are vectorised (opencv#26348), its 3-channel kernel is slower
+    than the 4-channel one and both conversions together (0.2-0.3 ms each at 1080p).
+
+    Measured alternately in one run (benchmarks/remap_kernels.py, results/remap_kernels.md; ms per
+    frame back to back, 2-core AMD EPYC, OpenCV 5.0; 3 channels with fixed / float maps -> padded
+    to 4 with float maps -> as ``Rectifier.rectify`` pads, the conversions on the calling thread):
+    720p bgr8 3.01 / 3.11 -> 2.01 -> 2.47; 1080p bgr8 6.52 / 6.65 -> 4.50 -> 5.41; 4K bgr8
+    27.9 / 30.5 -> 22.4 -> 25.7; 1080p bgr16 11.37 / 7.54 -> 6.18 -> 6.65. One call every 33 ms
+    in an otherwise idle process the gain is gone at 1080p bgr8 (7.71 fixed, 10.00 padded); in
+    the node's 30 fps stream, timed inside the node, the remap took 6.0-7.7 ms padded against
+    7.9-8.0 ms with 3 channels in fixed point (two rounds each). On OpenCV 4.6 no gain (1080p
+    bgr8 5.83 fixed, 6.05 padded), so 3 channels stay 3 there."""
+    return channels == 3 and interpolation == 1 and (version or opencv_version()) >= FLOAT_MAP_KERNELS
+
+
+_SERIAL_PIXELS = 1 << 16
+"""cv2.cvtColor splits an image into total / 2**16 stripes on its thread pool, and runs a smaller
+one on the calling thread alone."""
+
+
+def _convert_serially(src: np.ndarray, dst: np.ndarray, code: int):
+    """cv2.cvtColor(src, code) into ``dst``, on this thread only, in bands of rows below OpenCV's
+    threshold for parallel work. Why: a conversion takes 0.2-0.3 ms at 1080p, and a dispatch to
+    the thread pool waits for its slowest worker, which on a 2-core machine shared with the
+    camera driver and the image's consumers may be descheduled; in the node's 1080p bgr8 stream
+    at 30 fps the two pooled conversions cost 3-5 ms of latency (benchmarks/results/remap_kernels.md)."""
     import cv2
 
-    is_float = maps[0].dtype == np.float32
-    if is_float == (to == 'float'):
-        return maps
-    return tuple(cv2.convertMaps(maps[0], maps[1], cv2.CV_32FC1 if to == 'float' else cv2.CV_16SC2))
+    rows = max(1, _SERIAL_PIXELS // max(1, src.shape[1]))
+    for top in range(0, src.shape[0], rows):
+        cv2.cvtColor(src[top:top + rows], code, dst=dst[top:top + rows])
 
 
 def rectification_maps(camera: CameraModel, P: np.ndarray, size: Tuple[int, int],
@@ -189,9 +209,9 @@ class Rectifier:
     """Undistorts images of ``camera`` into the pinhole camera ``P``; maps are built once.
 
     ``rectify`` writes into a caller-provided buffer when given one, so a stream of frames
-    costs one cv2.remap each and no allocation. The maps are held in one format
-    (``map_format_for``: built as a one-channel image wants them; the first frame with more
-    channels that is faster the other way converts them once, 2-12 ms at 1080p).
+    costs one cv2.remap each and no allocation (3-channel images padded to 4 channels, where
+    that is faster: two cvtColor as well, into two frames kept for the next one). The maps are
+    built once, in the format OpenCV remaps fastest with (``map_format_for``).
     ``map_threads``: threads building the maps (default: one per CPU).
     """
 
@@ -205,8 +225,9 @@ class Rectifier:
         self.size = (camera.width, camera.height)
         self.interpolation = INTERPOLATIONS[interpolation]
         self._version = opencv_version()
+        self._four_channel_buffers = []  # (image, output) of 3-channel frames padded to 4, reused
         self._maps = rectification_maps(camera, self.P, self.size, threads=map_threads,
-                                        map_format=map_format_for(1, self.interpolation, self._version))
+                                        map_format=map_format_for(self.interpolation, self._version))
 
     @property
     def map1(self) -> np.ndarray:
@@ -224,18 +245,41 @@ class Rectifier:
     def map_nbytes(self) -> int:
         return self._maps[0].nbytes + self._maps[1].nbytes
 
+    @property
+    def frame_buffer_nbytes(self) -> int:
+        """Memory of the 4-channel frames 3-channel images are padded to (``pads_to_four_channels``):
+        two frames of the last such image, 8 bytes a pixel at 8 bits, held once used."""
+        return sum(a.nbytes + b.nbytes for a, b in list(self._four_channel_buffers))
+
     def rectify(self, image: np.ndarray, out: Optional[np.ndarray] = None) -> np.ndarray:
         import cv2  # loaded by the maps already: a dictionary lookup per frame
 
         h, w = image.shape[:2]
         if (w, h) != self.size:
             raise ValueError(f'image is {w}x{h}, the rectifier was built for {self.size[0]}x{self.size[1]}')
-        wanted = map_format_for(image.shape[2] if image.ndim == 3 else 1, self.interpolation, self._version)
-        if wanted != self.map_format:
-            self._maps = convert_maps(self._maps, wanted)
+        channels = image.shape[2] if image.ndim == 3 else 1
         # Unseen pixels of a float image (depth) are NaN, as image_proc / image_geometry fill them:
         # a 0 there would read as a valid depth and be blended into the edge pixels.
         border = float('nan') if image.dtype.kind == 'f' else 0
         map1, map2 = self._maps
-        return cv2.remap(image, map1, map2, self.interpolation, dst=out,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=border)
+        if not pads_to_four_channels(channels, self.interpolation, self._version):
+            return cv2.remap(image, map1, map2, self.interpolation, dst=out,
+                             borderMode=cv2.BORDER_CONSTANT, borderValue=border)
+        # list.pop / append are atomic: two threads rectifying at once never share buffers
+        try:
+            four, four_out = self._four_channel_buffers.pop()
+        except IndexError:
+            four = four_out = None
+        if four is None or four.shape[:2] != image.shape[:2] or four.dtype != image.dtype:
+            four = np.empty(image.shape[:2] + (4,), image.dtype)
+            four_out = np.empty_like(four)
+        if out is None:
+            out = np.empty_like(image)
+        try:
+            _convert_serially(image, four, cv2.COLOR_BGR2BGRA)  # the order of the 3 is kept: rgb8 too
+            cv2.remap(four, map1, map2, self.interpolation, dst=four_out,
+                      borderMode=cv2.BORDER_CONSTANT, borderValue=border)
+            _convert_serially(four_out, out, cv2.COLOR_BGRA2BGR)
+            return out
+        finally:
+            self._four_channel_buffers.append((four, four_out))
