@@ -152,19 +152,54 @@ def printed_lines(output):
     return [line for line in output.rstrip().splitlines() if not line.startswith('time ')]
 
 
+OPENCV_FISHEYE_SINGLE_SHOT = ('failed   OpenCV fisheye(1)', 'retried  OpenCV fisheye(1)',
+                              'note     OpenCV fisheye: implicit start')
+"""Lines about cv2.fisheye.calibrate from one view, which depend on the CPU as well as on OpenCV."""
+_SINGLE_SHOT_CELL = re.compile(r'\d+\.\d+ \(\d+\.\d+\) \[\d+/\d+ ok\]( \[\d+ retried\])?')
+
+
+def same_to_the_last_digit(printed: str, documented: str) -> bool:
+    """The same words, and the same numbers to one unit of their last printed digit."""
+    a, b = printed.split(), documented.split()
+    if len(a) != len(b):
+        return False
+    for x, y in zip(a, b):
+        if x == y:
+            continue
+        mx, my = (re.fullmatch(r'[(\[]?(-?\d+\.(\d+))[)\],]*', t) for t in (x, y))
+        if not (mx and my and len(mx.group(2)) == len(my.group(2))) or \
+                abs(float(mx.group(1)) - float(my.group(1))) > 1.01 * 10.0 ** -len(mx.group(2)):
+            return False
+    return True
+
+
 @pytest.mark.skipif(not SHARED.is_dir(), reason=f'{SHARED} is missing (the shared real data set)')
 def test_the_readme_evaluate_command_prints_the_documented_output():
     """Run as written, from the repository (the README's relative paths). The numbers are those
-    of the README's environment (OpenCV 5); OpenCV 4's own baselines give other numbers and
-    other failed runs, so there only the layout of the two tables is compared, on 3 of the 24
-    single-shot runs (the layout does not depend on their number; 45 s saved)."""
+    of the README's environment (OpenCV 5), to one unit of the last printed digit (the 2-core
+    Intel Xeon and AMD EPYC machines differ there). OpenCV fisheye's calibration from a single
+    view is the exception: which of its 24 runs fail, need a retry or raise, and its mean
+    error, differ between those two machines with the same OpenCV 5.0 (5 against 4 failed runs,
+    25.31 against 25.68 px), so its cell and lines are compared by layout. OpenCV 4's own
+    baselines give other numbers and other failed runs, so there only the layout of the two
+    tables is compared, on 3 of the 24 single-shot runs (the layout does not depend on their
+    number; 45 s saved)."""
     opencv5 = cv2.__version__.startswith('5.')
     result = cli(EVALUATE_COMMAND + ('' if opencv5 else ' --runs 3'))
     assert result.returncode == 0, result.stderr
     printed = printed_lines(result.stdout)
     documented = documented_evaluation(CALIBRATION_DOC).splitlines()
     if opencv5:
-        assert printed == documented
+        ours = [[line for line in lines if not line.startswith(OPENCV_FISHEYE_SINGLE_SHOT)]
+                for lines in (printed, documented)]
+        assert len(ours[0]) == len(ours[1]), (ours[0], ours[1])
+        table4 = ours[1].index(next(line for line in ours[1] if line.startswith('Table 4 layout')))
+        for i, (got, want) in enumerate(zip(*ours)):
+            if i in (table4 + 1, table4 + 2):  # its header and row: widths follow the single-shot cell
+                assert table_shape(got) == table_shape(want), (got, want)
+                got, want = _SINGLE_SHOT_CELL.sub('*', got), _SINGLE_SHOT_CELL.sub('*', want)
+            assert same_to_the_last_digit(got, want), (got, want)
+        assert any(line.startswith('failed   OpenCV fisheye(1)') for line in printed)
     else:
         tables = slice(0, documented.index(next(l for l in documented if l.startswith('runs '))))
         assert table_shape('\n'.join(printed[tables])) == table_shape('\n'.join(documented[tables]))
