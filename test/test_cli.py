@@ -648,11 +648,13 @@ def test_calibrate_spec_as_start_is_the_earlier_fc_zs(tmp_path, capsys):
     spec = CameraSpec(corners.width, corners.height, hfov=float(spec_args[1]), vfov=float(spec_args[3]))
     expected = library_calibrate(corners, 'fc+zs', [1], spec)
     assert record['method'] == 'FC_eq.d.+ZS' and record['init'] == 'zero-shot' and record['spec_as'] == 'start'
-    assert record['f'] == pytest.approx(expected.camera.f, rel=1e-9)
+    # the same fit to 1e-6: two runs of it differ by up to 1e-9 relative on OpenCV 4.6 (sums over
+    # threads in the iterative solve); the default ends 5.9 px away
+    assert record['f'] == pytest.approx(expected.camera.f, rel=1e-6)
     assert record['uncertainty_px'] is None
     status, out, _ = run_main(['calibrate', '--corners', str(path), '--single', 'view-01.png', *spec_args,
                                '--json'], capsys)
-    assert abs(json.loads(out)['f'] - record['f']) > 1e-6
+    assert abs(json.loads(out)['f'] - record['f']) > 1.0
 
 
 def test_calibrate_fov_tolerance_moves_the_fit_and_bad_values_are_one_line(tmp_path, capsys):
