@@ -32,10 +32,10 @@ def candidates(width, height, channels, dtype):
     import cv2
     from rectify_throughput import node_calibration
     _, rectifier = node_calibration(width, height).for_size(width, height)
-    maps = {'fixed': (rectifier.map1, rectifier.map2), 'float': (rectifier.map1, rectifier.map2)}
     other = 'float' if rectifier.map_format == 'fixed' else 'fixed'
-    maps[other] = tuple(cv2.convertMaps(rectifier.map1, rectifier.map2,
-                                        cv2.CV_32FC1 if other == 'float' else cv2.CV_16SC2))
+    maps = {rectifier.map_format: (rectifier.map1, rectifier.map2),
+            other: tuple(cv2.convertMaps(rectifier.map1, rectifier.map2,
+                                         cv2.CV_32FC1 if other == 'float' else cv2.CV_16SC2))}
     image = bc.test_image(width, height, channels)
     if dtype == np.uint16:
         image = image.astype(np.uint16) * 257

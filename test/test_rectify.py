@@ -220,8 +220,8 @@ def test_interpolation_values_are_opencvs_remap_flags():
 
 def test_map_format_follows_the_measured_table():
     """Float maps where OpenCV's remap runs faster with them (nearest always; linear from OpenCV
-    4.11, 3-channel images padded to 4 there), fixed point elsewhere; the rectifier builds the
-    one-channel choice."""
+    4.11, 3-channel images padded to 4 there), fixed point elsewhere, whatever the encoding;
+    the rectifier builds its OpenCV's choice."""
     new, old = (5, 0), (4, 6)
     assert [map_format_for(1, v) for v in (new, (4, 11), old)] == ['float', 'float', 'fixed']
     assert [map_format_for(0, v) for v in (new, old)] == ['float'] * 2
@@ -241,7 +241,7 @@ def test_map_format_follows_the_measured_table():
 def test_three_channel_frames_padded_to_four_reuse_their_buffers_and_stay_exact(version, dtype):
     """Where 3-channel images are remapped as 4 (OpenCV 4.11+, linear), every frame equals
     cv2.remap of the 3-channel image with the same maps, the two 4-channel working frames are
-    allocated once for a stream (no allocation per frame) and follow a change of size or depth;
+    allocated once for a stream (no allocation per frame) and follow a change of depth;
     on OpenCV 4.6's rule nothing is padded and no working frame is held. Two threads rectifying
     at once never share working frames (each result is its own image's)."""
     camera = solve_zero_shot(CameraSpec(192, 108, 118, 69)).camera

@@ -128,8 +128,8 @@ def pads_to_four_channels(channels: int, interpolation: int, version: Optional[T
     720p bgr8 3.01 / 3.11 -> 2.01 -> 2.47; 1080p bgr8 6.52 / 6.65 -> 4.50 -> 5.41; 4K bgr8
     27.9 / 30.5 -> 22.4 -> 25.7; 1080p bgr16 11.37 / 7.54 -> 6.18 -> 6.65. One call every 33 ms
     in an otherwise idle process the gain is gone at 1080p bgr8 (7.71 fixed, 10.00 padded); in
-    the node's 30 fps stream, timed inside the node, the remap took 6.0-7.7 ms padded against
-    7.9-8.0 ms with 3 channels in fixed point (two rounds each). On OpenCV 4.6 no gain (1080p
+    the node's 30 fps stream, timed inside an instrumented copy of the node (not kept), the
+    remap took 6.0-7.7 ms padded against 7.9-8.0 ms with 3 channels in fixed point (two rounds each). On OpenCV 4.6 no gain (1080p
     bgr8 5.83 fixed, 6.05 padded), so 3 channels stay 3 there."""
     return channels == 3 and interpolation == 1 and (version or opencv_version()) >= FLOAT_MAP_KERNELS
 
@@ -143,8 +143,10 @@ def _convert_serially(src: np.ndarray, dst: np.ndarray, code: int):
     """cv2.cvtColor(src, code) into ``dst``, on this thread only, in bands of rows below OpenCV's
     threshold for parallel work. Why: a conversion takes 0.2-0.3 ms at 1080p, and a dispatch to
     the thread pool waits for its slowest worker, which on a 2-core machine shared with the
-    camera driver and the image's consumers may be descheduled; in the node's 1080p bgr8 stream
-    at 30 fps the two pooled conversions cost 3-5 ms of latency (benchmarks/results/remap_kernels.md)."""
+    camera driver and the image's consumers may be descheduled: with pooled conversions the
+    node's 30 fps latency at 1080p bgr8 was 21.84 ms against 16.91 for the fixed-point node,
+    alternately in one run (rectify_throughput.py --encodings bgr8 --baseline 39fc760 --rounds 2;
+    not kept), although the padded remap is faster in isolation (results/remap_kernels.md)."""
     import cv2
 
     rows = max(1, _SERIAL_PIXELS // max(1, src.shape[1]))
