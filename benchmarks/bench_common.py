@@ -51,6 +51,16 @@ def vfov_for(width, height):
     return 69.0 if abs(width / height - 16 / 9) < 1e-6 else 90.0
 
 
+def node_calibration(width, height, rectify=True):
+    """The node's own ActiveCalibration for the benchmark lens at this frame size (the node's
+    defaults and code path; needs the install tree, or the package, importable)."""
+    from zeroshot_calib_ros.core.ros_data.node_parameters import PARAMETERS, Settings, solve_from_settings
+    values = {name: parameter.default for name, parameter in PARAMETERS.items()}
+    values.update(width=width, height=height, hfov=HFOV, vfov=vfov_for(width, height), rectify=rectify)
+    active, _ = solve_from_settings(Settings.from_values(values), 0)
+    return active
+
+
 def site_packages() -> Path:
     return REPO / 'install' / 'zeroshot_calib_ros' / 'lib' / \
         f'python{sys.version_info[0]}.{sys.version_info[1]}' / 'site-packages'

@@ -13,7 +13,13 @@ subscriber, through the project's shared-memory Fast DDS profile:
   ``--baseline REF`` the package as committed at a git ref; ``--baseline none``: not measured;
 * relay: benchmarks/relay_node.py, the same process layout and QoS, republishing each frame
   unchanged (its raw mode: no deserialisation) -- the transport floor;
-* remap: ``cv2.remap`` alone on the node's maps, in this process -- the compute floor.
+* remap: ``cv2.remap`` alone on the node's maps, in this process -- the compute floor;
+* remap relay (on by default; ``--no-remap-relay``): relay_node.py ``--mode remap``, the raw
+  relay that also does what the node must per frame and nothing more -- the node's CameraInfo
+  (a template, stamp patched), then ``Rectifier.rectify`` on the node's maps, with the node's
+  QoS -- the floor of this node in a stream, where the remap runs on cores that sat idle since
+  the last frame (slower than back to back). ``node - remap relay`` is what the node's own work
+  costs (frame checks, calibration lookups, counters, its executor's other entities).
 
 Measured per case: latency (publisher stamp -> subscriber receive, wall clock) at 30 fps and the
 frames dropped there; the maximum sustained rate (highest offered rate with <= 1 % loss, found by
@@ -23,6 +29,9 @@ every size and reported for 1080p:
     median latency(node)   <= median latency(relay) + remap + 1 ms
     max sustained rate(node) >= 0.9 / (1 / rate(relay) + remap)
     max sustained rate(node) >= 1.15 x max sustained rate(baseline)   (1080p bgr8 and mono8)
+
+and beside them the same two figures of the remap relay, which meets them only if a remap in the
+stream is as fast as a back-to-back one.
 
 Start the full run on a quiet machine: the 1-min load average (``uptime``) at the start and
 before every case is in the results.
@@ -123,7 +132,7 @@ class Session:
         self.images, self.infos, self.setdone = {}, {}, []
         self.rss = []
         sub_argv = [bc.PY, COMMON, 'sub', '--topic', 'image_rect']
-        if system == 'node' and info:
+        if system in ('node', 'remap_relay') and info:
             sub_argv += ['--info-topic', 'camera_info']
         self.sub = bc.Child(sub_argv, self.env, f'{self.tag}-sub', stdin=True, log_dir=log_dir)
         self.sub.wait_line('READY', 60)
@@ -137,6 +146,8 @@ class Session:
                 argv = [bc.PY, '-c', code, '--ros-args']
             for k, v in params.items():
                 argv += ['-p', f'{k}:={str(v).lower() if isinstance(v, bool) else v}']
+        elif system == 'remap_relay':
+            argv = [bc.PY, bc.RELAY, '--mode', 'remap', '--width', width, '--height', height]
         else:
             argv = [bc.PY, bc.RELAY, '--mode', relay_mode]
         self.target = bc.Child(argv, {**self.env, **(target_env or {})}, f'{self.tag}-target', log_dir=log_dir)
@@ -314,15 +325,6 @@ def summarise_profile(path):
 
 
 # --- in-process floors and comparisons ----------------------------------------------------
-def node_calibration(width, height, rectify=True):
-    """The node's own ActiveCalibration for the benchmark spec (same code path)."""
-    from zeroshot_calib_ros.core.ros_data.node_parameters import PARAMETERS, Settings, solve_from_settings
-    values = {name: parameter.default for name, parameter in PARAMETERS.items()}
-    values.update(width=width, height=height, hfov=bc.HFOV, vfov=bc.vfov_for(width, height), rectify=rectify)
-    active, _ = solve_from_settings(Settings.from_values(values), 0)
-    return active
-
-
 def timed(fn, repeat, warm=2, pause=0.0):
     """Median ms of ``fn``; with ``pause`` s of sleep before each call (as frames arrive)."""
     for _ in range(warm):
@@ -340,7 +342,7 @@ def timed(fn, repeat, warm=2, pause=0.0):
 def remap_floor(width, height, encoding, repeat):
     import cv2
     from zeroshot_calib_ros.core.ros_data import rectify as rectify_module
-    active = node_calibration(width, height)
+    active = bc.node_calibration(width, height)
     _, rectifier = active.for_size(width, height)
     image = bc.test_image(width, height, bc.CHANNELS[encoding])
     out = np.empty_like(image)
@@ -364,7 +366,7 @@ def compare_with_opencv(width, height, encoding, repeat):
     route) vs cv2.fisheye.undistortImage per frame."""
     import cv2
     from zeroshot_calib_ros.core.ros_data.rectify import Rectifier
-    active = node_calibration(width, height)
+    active = bc.node_calibration(width, height)
     cal = active.calibration
     K, D, P = cal.K, cal.D, cal.P[:3, :3]
     image = bc.test_image(width, height, bc.CHANNELS[encoding])
@@ -484,6 +486,42 @@ def speedup_lines(results):
     return lines
 
 
+def stream_floor_lines(results):
+    """The node against the remap relay (the raw relay plus the node's remap, nothing else) in the
+    same run: what the node's own work costs, and the targets measured on that floor."""
+    rows = [r for r in results if 'remap_relay' in r]
+    if not rows:
+        return []
+    lines = ['### The node against the remap relay (relay + the node\'s remap in the stream), same run', '',
+             '| frame | enc | relay p50 ms | remap relay p50 ms | node p50 ms | node - remap relay ms | '
+             'remap relay over relay ms | remap hot ms | remap relay latency target met | remap relay max fps | '
+             'node max fps | node / remap relay | remap relay rate target met | 30 fps drops remap relay |',
+             '|---|---|---|---|---|---|---|---|---|---|---|---|---|---|']
+    for r in rows:
+        relay, floor, node = r['relay'], r['remap_relay'], r['node']
+        remap = r['remap_ms']['node']
+        t_lat = relay['p30']['latency_ms'][50] + remap + 1.0
+        t_rate = 0.9 / (1.0 / relay['max_rate'] + remap * 1e-3) if relay['max_rate'] > 0 else float('nan')
+        lat, floor_lat, node_lat = (x['p30']['latency_ms'][50] for x in (relay, floor, node))
+        ratio = node['max_rate'] / floor['max_rate'] if floor['max_rate'] > 0 else float('nan')
+        r['stream_floor'] = {'node_over_floor_ms': node_lat - floor_lat, 'floor_over_relay_ms': floor_lat - lat,
+                             'floor_latency_met': bool(floor_lat <= t_lat), 'floor_rate_met': bool(floor['max_rate'] >= t_rate),
+                             'node_over_floor_rate': ratio}
+        yes = lambda ok: 'yes' if ok else '**no**'  # noqa: E731
+        lines.append(f"| {r['size']} | {r['encoding']} | {fmt(lat, 2)} | {fmt(floor_lat, 2)} | {fmt(node_lat, 2)} | "
+                     f"{node_lat - floor_lat:+.2f} | {floor_lat - lat:.2f} | {fmt(remap, 2)} | "
+                     f"{yes(floor_lat <= t_lat)} | {fmt(floor['max_rate'])} | {fmt(node['max_rate'])} | "
+                     f"{fmt(ratio, 2)}x | {yes(floor['max_rate'] >= t_rate)} | "
+                     f"{floor['p30']['lost']}/{floor['p30']['sent']} |")
+    lines += ['', 'Remap relay: `benchmarks/relay_node.py --mode remap`, what the node must do per frame and '
+              'nothing more: the node\'s CameraInfo (a serialized template, stamp patched), then '
+              '`Rectifier.rectify` on the node\'s maps into a reused serialized buffer, published as bytes, '
+              'with the node\'s QoS; no checks, lookups, parameters or diagnostics. Its targets are the node\'s '
+              '(relay p50 + hot remap + 1 ms; 0.9 / (1 / relay fps + hot remap)). Medians of the same rounds '
+              'as above.', '']
+    return lines
+
+
 def _run_settings(raw) -> tuple:
     """(quiet-budget minutes, attempts) of a run: recorded, or read from its command line."""
     command = ' '.join(raw.get('header', [''])[:1])
@@ -532,11 +570,13 @@ def comparison_table(comparisons):
     return '\n'.join(lines)
 
 
-def run_throughput(sizes, encodings, cfg, log_dir, profile_dir=None, baseline_dir=None, rounds=1, attempts=3):
-    """relay and node (and the baseline node) alternately, ``rounds`` times each; the round with
-    the median max rate is kept (a busy shared machine makes single runs noisy)."""
+def run_throughput(sizes, encodings, cfg, log_dir, profile_dir=None, baseline_dir=None, rounds=1, attempts=3,
+                   remap_relay=True):
+    """relay, remap relay and node (and the baseline node) alternately, ``rounds`` times each;
+    medians over the rounds (a busy shared machine makes single runs noisy)."""
     results = []
-    systems = ['relay', 'node'] + (['baseline'] if baseline_dir else [])
+    systems = (['relay'] + (['remap_relay'] if remap_relay else []) + ['node']
+               + (['baseline'] if baseline_dir else []))
     for size in sizes:
         w, h = bc.SIZES[size]
         for enc in encodings:
@@ -599,7 +639,7 @@ def _run_system_once(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir)
         sat = s.phase('saturation', 0, cfg['sat_seconds'])
         rate, trials = max_sustained_rate(s, sat.output_rate, cfg['bisect_steps'], cfg['trial_seconds'])
         prof = None
-        if profile_dir is not None and system != 'relay':
+        if profile_dir is not None and system in ('node', 'baseline'):
             path = Path(profile_dir) / f'pyspy-{system}-{size}-{enc}.txt'
             got, _ = profile_target(s, cfg['profile_seconds'], path, max(1.0, 0.9 * rate))
             prof = str(got) if got else None
@@ -607,7 +647,7 @@ def _run_system_once(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir)
                   'trials': trials, 'peak_rss_mib': s.peak_rss(), 'rss_samples': s.rss[::4],
                   'profile': prof, 'alive': s.target.alive(), 'load_at_start': load,
                   'others_cores': others.cores()}
-        if system != 'relay':
+        if system in ('node', 'baseline'):
             result['non_finite_camera_info'] = sum(1 for v in s.infos.values() if not v[1])
     finally:
         s.close()
@@ -635,6 +675,8 @@ def main(argv=None):
                    '(other processes below 0.3 cores) may take together (default 60; 0: never wait)')
     p.add_argument('--attempts', type=int, default=3, help='measurements of a run at most, while other processes '
                    'used more than 0.6 cores during it (default 3; 1: as the machine is, the load recorded)')
+    p.add_argument('--no-remap-relay', dest='remap_relay', action='store_false',
+                   help='do not measure the remap relay (relay_node.py --mode remap) beside the node')
     p.add_argument('--out', default=str(bc.RESULTS / 'rectify_throughput.md'))
     p.add_argument('--render', default=None, metavar='JSON', help='only re-render the report of a previous run')
     args = p.parse_args(argv)
@@ -678,7 +720,8 @@ def main(argv=None):
                           'archive; the "node" is the working tree as built into install/.', '']
     if 'throughput' not in skip:
         raw['throughput'] = run_throughput(sizes, encodings, cfg, log_dir, log_dir if args.profile else None,
-                                           baseline_dir, raw['rounds'], attempts=args.attempts)
+                                           baseline_dir, raw['rounds'], attempts=args.attempts,
+                                           remap_relay=args.remap_relay)
     if 'compare' not in skip:
         comparisons = []
         for size in sizes:
@@ -700,7 +743,7 @@ def render(json_path: Path, out: Path):
     """The markdown report of a run's raw results (also: --render JSON)."""
     raw = json.loads(Path(json_path).read_text())
     for entry in raw.get('throughput', []):  # JSON turned the percentile keys into strings
-        for system in ('relay', 'node', 'baseline'):
+        for system in ('relay', 'remap_relay', 'node', 'baseline'):
             if system in entry:
                 lat = entry[system]['p30']['latency_ms']
                 entry[system]['p30']['latency_ms'] = {int(k) if k.isdigit() else k: v for k, v in lat.items()}
@@ -721,6 +764,7 @@ def render(json_path: Path, out: Path):
                    'serialised frame unchanged). Three processes share 2 cores, so the publisher and '
                    'subscriber take CPU from the system under test; ratios are from one run.', '']
         report += speedup_lines(results)
+        report += stream_floor_lines(results)
         report += load_lines(results, raw)
         report += profile_report(results)
     if 'compare' in raw:

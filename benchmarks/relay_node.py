@@ -8,44 +8,101 @@ best effort, volatile, on both topics), same executor (rclpy.spin, single-thread
                  deserialisation at all, the cheapest a Python node can forward a frame.
     --mode msg   takes a sensor_msgs/Image (deserialised into Python) and publishes it again,
                  what a naive Python relay does.
+    --mode remap what the node must do per frame and nothing more: the raw relay that first
+                 publishes the node's CameraInfo (a serialized template, the frame's stamp
+                 patched in) on camera_info, then remaps the pixels viewed in the received bytes
+                 with ``Rectifier.rectify`` on the node's maps (built at start for
+                 ``--width``/``--height`` and the benchmark lens) into a reused buffer that holds
+                 the received header, and publishes it as bytes; the node's QoS (image_raw
+                 depth 10, camera_info transient local). No checks, lookups, parameters or
+                 diagnostics: the floor of a node like this one in a stream, where the remap
+                 starts cold between frames (a back-to-back remap never does).
 
 Run with the benchmark environment (benchmarks/bench_common.py ros_env), e.g.
 
     .venv/bin/python benchmarks/relay_node.py --mode raw
 """
 import argparse
+import os
 import sys
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
-from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Image
+# as the node sets them, before OpenCV loads (zeroshot_calib_ros/ros/node.py says why)
+for _name in ('OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER', 'OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN'):
+    os.environ.setdefault(_name, '0')
+
+import numpy as np  # noqa: E402
+import rclpy  # noqa: E402
+from rclpy.executors import ExternalShutdownException  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 
 QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=ReliabilityPolicy.BEST_EFFORT,
                  durability=DurabilityPolicy.VOLATILE)
+# --mode remap: the node's QoS with a best-effort camera (zeroshot_calib_ros/ros/node.py)
+IN_QOS_REMAP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.BEST_EFFORT,
+                          durability=DurabilityPolicy.VOLATILE)
+INFO_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class Relay(Node):
-    def __init__(self, mode: str, in_topic: str, out_topic: str):
+    def __init__(self, mode: str, in_topic: str, out_topic: str, rectifier=None, calibration=None):
         super().__init__('image_relay')
         self.count = 0
+        self._rectifier = rectifier
+        self._out = None  # (received length, bytearray of the serialized output, pixel view into it)
+        self._info = None  # (frame_id, serialized CameraInfo template)
+        self._calibration = calibration
         self._pub = self.create_publisher(Image, out_topic, QOS)
-        self.create_subscription(Image, in_topic, self._on_image, QOS, raw=(mode == 'raw'))
+        if rectifier is None:
+            self.create_subscription(Image, in_topic, self._on_image, QOS, raw=(mode == 'raw'))
+            return
+        self._info_pub = self.create_publisher(CameraInfo, 'camera_info', INFO_QOS)
+        self.create_subscription(Image, in_topic, self._on_image_remapped, IN_QOS_REMAP, raw=True)
 
     def _on_image(self, msg):
         self._pub.publish(msg)
         self.count += 1
 
+    def _on_image_remapped(self, raw: bytes):
+        from zeroshot_calib_ros.core.ros_data.cdr_image import parse_image, patch_stamp, pixel_bytes
+        from zeroshot_calib_ros.core.ros_data.image_frames import image_array
+        from zeroshot_calib_ros.ros.messages import serialized_camera_info
+
+        header = parse_image(raw)  # a few microseconds; the same frame layout throughout a run
+        if self._info is None or self._info[0] != header.frame_id:
+            self._info = (header.frame_id, serialized_camera_info(self._calibration, header.frame_id))
+        patch_stamp(self._info[1], header.sec, header.nanosec)
+        with self._info_pub.handle:
+            self._info_pub.handle.publish_raw(self._info[1])
+        image = image_array(pixel_bytes(raw, header), header.width, header.height, header.step, header.encoding)
+        if self._out is None or self._out[0] != len(raw):
+            buffer = bytearray(len(raw))
+            view = np.ndarray(image.shape, image.dtype, buffer=buffer, offset=header.data_offset)
+            self._out = (len(raw), buffer, view)
+        _, buffer, view = self._out
+        buffer[:header.data_offset] = raw[:header.data_offset]  # the received header: stamp, size, step
+        self._rectifier.rectify(image, out=view)
+        with self._pub.handle:
+            self._pub.handle.publish_raw(buffer)
+        self.count += 1
+
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument('--mode', choices=['raw', 'msg'], default='raw')
+    p.add_argument('--mode', choices=['raw', 'msg', 'remap'], default='raw')
     p.add_argument('--in-topic', default='image_raw')
     p.add_argument('--out-topic', default='image_rect')
+    p.add_argument('--width', type=int, default=1920, help='frame width of --mode remap')
+    p.add_argument('--height', type=int, default=1080, help='frame height of --mode remap')
     args, ros_args = p.parse_known_args(argv)
+    calibration = rectifier = None
+    if args.mode == 'remap':  # the node's calibration and maps, before any frame comes (as the node has them)
+        from bench_common import node_calibration
+        calibration, rectifier = node_calibration(args.width, args.height).for_size(args.width, args.height)
     rclpy.init(args=[sys.argv[0], *ros_args])
-    node = Relay(args.mode, args.in_topic, args.out_topic)
+    node = Relay(args.mode, args.in_topic, args.out_topic, rectifier, calibration)
     print('RELAY READY', flush=True)
     try:
         rclpy.spin(node)

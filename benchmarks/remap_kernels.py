@@ -30,8 +30,7 @@ ENCODINGS = {'bgr8': (3, np.uint8), 'bgr16': (3, np.uint16), 'mono8': (1, np.uin
 def candidates(width, height, channels, dtype):
     """name -> zero-argument callable, for one frame of that kind."""
     import cv2
-    from rectify_throughput import node_calibration
-    _, rectifier = node_calibration(width, height).for_size(width, height)
+    _, rectifier = bc.node_calibration(width, height).for_size(width, height)
     other = 'float' if rectifier.map_format == 'fixed' else 'fixed'
     maps = {rectifier.map_format: (rectifier.map1, rectifier.map2),
             other: tuple(cv2.convertMaps(rectifier.map1, rectifier.map2,

@@ -190,3 +190,57 @@ def test_malformed_serialized_frames_are_skipped_and_counted_on_the_serialized_p
     assert {m.header.stamp.nanosec for m in infos} & set(range(60, 68)) == {63}
     assert not {m.header.stamp.nanosec for m in rects} & set(range(60, 68))
     assert node.alive() and 'Traceback' not in node.log
+
+
+def test_the_benchmarks_remap_relay_publishes_the_nodes_camera_info_then_the_rectified_frame():
+    """benchmarks/relay_node.py --mode remap, the stream floor the node's latency and rate are
+    measured against (benchmarks/rectify_throughput.py): per frame, the node's CameraInfo with the
+    frame's header, then the serialized Image the node publishes (the frame's header, the node's
+    rectification of its pixels) from one buffer reused frame after frame. No DDS here: its
+    callback is called with serialized frames and publishers that keep what they are given."""
+    import sys
+    from pathlib import Path
+    from types import SimpleNamespace
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'benchmarks'))
+    import bench_common
+    import relay_node
+    from zeroshot_calib_ros.ros.messages import fill_camera_info
+
+    published = []
+
+    class Handle:
+        def __init__(self, topic):
+            self.topic = topic
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def publish_raw(self, buffer):
+            published.append((self.topic, bytes(buffer)))  # copied, as the middleware copies before returning
+
+    calibration, rectifier = bench_common.node_calibration(64, 36).for_size(64, 36)
+    relay = SimpleNamespace(_rectifier=rectifier, _calibration=calibration, _out=None, _info=None, count=0,
+                            _pub=SimpleNamespace(handle=Handle('image_rect')),
+                            _info_pub=SimpleNamespace(handle=Handle('camera_info')))
+    frames = [image_msg(texture((36, 64), np.uint8, 30), 'mono8', 60_000_000_000, frame_id='a'),
+              image_msg(texture((36, 64), np.uint8, 31), 'mono8', 60_000_000_001, frame_id='b'),
+              image_msg(texture((36, 64, 3), np.uint8, 32), 'bgr8', 60_000_000_002, frame_id='camera_optical')]
+    buffers = []
+    for msg in frames:
+        relay_node.Relay._on_image_remapped(relay, serialize_message(msg))
+        buffers.append(relay._out[1])
+    assert relay.count == 3 and buffers[0] is buffers[1] and buffers[2] is not buffers[1]  # reused per layout
+    assert [topic for topic, _ in published] == ['camera_info', 'image_rect'] * 3
+    for msg, (_, info), (_, ours) in zip(frames, published[0::2], published[1::2]):
+        expected_info = CameraInfo()
+        fill_camera_info(expected_info, calibration)
+        expected_info.header = msg.header
+        assert_same_message(info, serialize_message(expected_info), CameraInfo)
+        pixels = np.frombuffer(bytes(msg.data), np.uint8).reshape((msg.height, msg.width, -1)).squeeze()
+        expected = image_msg(rectifier.rectify(pixels), msg.encoding, stamp_of(serialize_message(msg)),
+                             frame_id=msg.header.frame_id)
+        assert_same_message(ours, serialize_message(expected), Image, zero_padding=False)  # header copied as received
+    assert deserialize_message(published[1][1], Image).data != frames[0].data  # remapped, not passed through
