@@ -325,23 +325,21 @@ def _opencv_fisheye_rms(result, corners):
     return float(np.sqrt(np.mean(np.concatenate(sq))))
 
 
-def test_of_the_sound_retries_the_lowest_rms_is_kept(monkeypatch):
-    """After an unsound first result every retry runs, and the sound one with the lowest RMS is
-    kept: a sound retry can be far off (OpenCV 5.1 from its documented default start ends at a
-    363 px RMS on the lens below, where the FC_eq.d. start gives 0.07 px). Scripted here on any
-    OpenCV: the first result is made unsound, the default-start retry starts from the real first
-    camera with its distortion held at zero (sound, and pixels off), the FC_eq.d.-start retry runs as OpenCV runs it."""
-    mild = ZeroShotCamera(500.0, 402.0, 251.0, W, H, 0.4 / 500.0)
-    corners = synthetic_corners(mild, 20, noise=0.05, seed=9, tilt_deg=(5, 45))
-    real = cv2.fisheye.calibrate
-    calls = []
+MILD = ZeroShotCamera(500.0, 402.0, 251.0, W, H, 0.4 / 500.0)
 
-    def scripted(obj, img, size, K, D, *args, **kwargs):
+
+def _fisheye_with_a_nonsense_first_result(monkeypatch, second=None):
+    """calibrate_opencv_fisheye on MILD's corners, its first cv2.fisheye.calibrate result made
+    contradictory (a camera 3x too long with OpenCV's small RMS); ``second(K0, flags, first K)``
+    may change the start and flags of the second call. Returns (result, flags of each call)."""
+    corners = synthetic_corners(MILD, 20, noise=0.05, seed=9, tilt_deg=(5, 45))
+    real = cv2.fisheye.calibrate
+    calls, first = [], []
+
+    def nonsense_first(obj, img, size, K, D, *args, **kwargs):
         calls.append(kwargs.get('flags'))
-        if len(calls) == 2:  # from the first (real) camera, so that it converges on any OpenCV
-            K = first[0].copy()
-            kwargs['flags'] |= (cv2.fisheye.CALIB_FIX_K1 | cv2.fisheye.CALIB_FIX_K2 | cv2.fisheye.CALIB_FIX_K3
-                                | cv2.fisheye.CALIB_FIX_K4)
+        if len(calls) == 2 and second is not None:
+            K, kwargs['flags'] = second(K, kwargs['flags'], first[0])
         rms, K1, D1, rv, tv = real(obj, img, size, K, D, *args, **kwargs)
         if len(calls) == 1:
             first.append(np.array(K1, float))
@@ -350,38 +348,36 @@ def test_of_the_sound_retries_the_lowest_rms_is_kept(monkeypatch):
             K1[1, 1] *= 3
         return rms, K1, D1, rv, tv
 
-    first = []
-    monkeypatch.setattr(cv2.fisheye, 'calibrate', scripted)
-    result = calibrate_opencv_fisheye(corners)
+    monkeypatch.setattr(cv2.fisheye, 'calibrate', nonsense_first)
+    return calibrate_opencv_fisheye(corners), calls
+
+
+def test_of_the_sound_retries_the_lowest_rms_is_kept(monkeypatch):
+    """After an unsound first result every retry runs, and the sound one with the lowest RMS is
+    kept: a sound retry can be far off (OpenCV 5.1 from its documented default start ends at a
+    363 px RMS on MILD, where the FC_eq.d. start gives 0.07 px). Scripted here on any OpenCV: the
+    default-start retry starts from the real first camera (so that it converges on any OpenCV)
+    with its distortion held at zero (sound, and pixels off); the FC_eq.d.-start retry runs as
+    OpenCV runs it."""
+    zero_distortion = (cv2.fisheye.CALIB_FIX_K1 | cv2.fisheye.CALIB_FIX_K2 | cv2.fisheye.CALIB_FIX_K3
+                       | cv2.fisheye.CALIB_FIX_K4)
+    result, calls = _fisheye_with_a_nonsense_first_result(
+        monkeypatch, lambda K, flags, first: (first.copy(), flags | zero_distortion))
     assert len(calls) == 3 and result.ok and result.init.startswith('the FC_eq.d. camera')
-    assert result.camera.fx == pytest.approx(mild.f, rel=0.02) and result.opencv_rms < 0.2
+    assert result.camera.fx == pytest.approx(MILD.f, rel=0.02) and result.opencv_rms < 0.2
     note = next(n for n in result.notes if n.startswith('retried from the FC_eq.d. camera'))
     held = float(re.search(r'also opencv defaults made explicit .*? \(([\d.]+) px\)\)$', note).group(1))
     assert held > 10 * result.opencv_rms, note
 
 
 def test_an_opencv_fisheye_result_contradicting_its_rms_is_retried(monkeypatch):
-    mild = ZeroShotCamera(500.0, 402.0, 251.0, W, H, 0.4 / 500.0)
-    corners = synthetic_corners(mild, 20, noise=0.05, seed=9, tilt_deg=(5, 45))
-    real = cv2.fisheye.calibrate
-    calls = []
-
-    def nonsense_first(obj, img, size, K, D, *args, **kwargs):
-        calls.append(kwargs.get('flags'))
-        rms, K1, D1, rv, tv = real(obj, img, size, K, D, *args, **kwargs)
-        if len(calls) == 1:  # a camera 3x too long with OpenCV's small RMS: contradictory
-            K1 = K1.copy()
-            K1[0, 0] *= 3
-            K1[1, 1] *= 3
-        return rms, K1, D1, rv, tv
-
-    monkeypatch.setattr(cv2.fisheye, 'calibrate', nonsense_first)
-    result = calibrate_opencv_fisheye(corners)
+    corners = synthetic_corners(MILD, 20, noise=0.05, seed=9, tilt_deg=(5, 45))
+    result, calls = _fisheye_with_a_nonsense_first_result(monkeypatch)
     assert len(calls) >= 2 and result.ok
     assert any('retried' in n and 'contradicts' in n for n in result.notes), result.notes
     independent = _opencv_fisheye_rms(result, corners)
     assert independent == pytest.approx(result.opencv_rms, rel=0.05, abs=0.01)
-    assert result.camera.fx == pytest.approx(mild.f, rel=0.02)
+    assert result.camera.fx == pytest.approx(MILD.f, rel=0.02)
 
 
 def test_an_opencv_fisheye_result_that_stays_contradictory_is_failed(monkeypatch):
