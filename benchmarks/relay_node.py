@@ -12,8 +12,8 @@ best effort, volatile, on both topics), same executor (rclpy.spin, single-thread
                  publishes the node's CameraInfo (a serialized template, the frame's stamp
                  patched in) on camera_info, then remaps the pixels viewed in the received bytes
                  with ``Rectifier.rectify`` on the node's maps (built at start for
-                 ``--width``/``--height`` and the benchmark lens) into a reused buffer that holds
-                 the received header, and publishes it as bytes; the node's QoS (image_raw
+                 ``--width``/``--height`` and the benchmark lens) into the node's reused
+                 serialized image_rect (``SerializedImage``), and publishes it as bytes; the node's QoS (image_raw
                  depth 10, camera_info transient local). No checks, lookups, parameters or
                  diagnostics: the floor of a node like this one in a stream, where the remap
                  starts cold between frames (a back-to-back remap never does).
@@ -30,7 +30,6 @@ import sys
 for _name in ('OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER', 'OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN'):
     os.environ.setdefault(_name, '0')
 
-import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
 from rclpy.executors import ExternalShutdownException  # noqa: E402
 from rclpy.node import Node  # noqa: E402
@@ -51,13 +50,15 @@ class Relay(Node):
         super().__init__('image_relay')
         self.count = 0
         self._rectifier = rectifier
-        self._out = None  # (received length, bytearray of the serialized output, pixel view into it)
+        self._rect = None  # SerializedImage: the node's reused serialized image_rect (--mode remap)
         self._info = None  # (frame_id, serialized CameraInfo template)
         self._calibration = calibration
         self._pub = self.create_publisher(Image, out_topic, QOS)
         if rectifier is None:
             self.create_subscription(Image, in_topic, self._on_image, QOS, raw=(mode == 'raw'))
             return
+        from zeroshot_calib_ros.core.ros_data.cdr_image import SerializedImage
+        self._rect = SerializedImage()
         self._info_pub = self.create_publisher(CameraInfo, 'camera_info', INFO_QOS)
         self.create_subscription(Image, in_topic, self._on_image_remapped, IN_QOS_REMAP, raw=True)
 
@@ -77,15 +78,10 @@ class Relay(Node):
         with self._info_pub.handle:
             self._info_pub.handle.publish_raw(self._info[1])
         image = image_array(pixel_bytes(raw, header), header.width, header.height, header.step, header.encoding)
-        if self._out is None or self._out[0] != len(raw):
-            buffer = bytearray(len(raw))
-            view = np.ndarray(image.shape, image.dtype, buffer=buffer, offset=header.data_offset)
-            self._out = (len(raw), buffer, view)
-        _, buffer, view = self._out
-        buffer[:header.data_offset] = raw[:header.data_offset]  # the received header: stamp, size, step
-        self._rectifier.rectify(image, out=view)
+        out = self._rect.prepare(header.sec, header.nanosec, header.frame_id, header.encoding, image.shape, image.dtype)
+        self._rectifier.rectify(image, out=out)
         with self._pub.handle:
-            self._pub.handle.publish_raw(buffer)
+            self._pub.handle.publish_raw(self._rect.buffer)
         self.count += 1
 
 

@@ -331,7 +331,7 @@ MILD = ZeroShotCamera(500.0, 402.0, 251.0, W, H, 0.4 / 500.0)
 def _fisheye_with_a_nonsense_first_result(monkeypatch, second=None):
     """calibrate_opencv_fisheye on MILD's corners, its first cv2.fisheye.calibrate result made
     contradictory (a camera 3x too long with OpenCV's small RMS); ``second(K0, flags, first K)``
-    may change the start and flags of the second call. Returns (result, flags of each call)."""
+    may change the start and flags of the second call. Returns (result, flags of each call, corners)."""
     corners = synthetic_corners(MILD, 20, noise=0.05, seed=9, tilt_deg=(5, 45))
     real = cv2.fisheye.calibrate
     calls, first = [], []
@@ -349,7 +349,7 @@ def _fisheye_with_a_nonsense_first_result(monkeypatch, second=None):
         return rms, K1, D1, rv, tv
 
     monkeypatch.setattr(cv2.fisheye, 'calibrate', nonsense_first)
-    return calibrate_opencv_fisheye(corners), calls
+    return calibrate_opencv_fisheye(corners), calls, corners
 
 
 def test_of_the_sound_retries_the_lowest_rms_is_kept(monkeypatch):
@@ -361,7 +361,7 @@ def test_of_the_sound_retries_the_lowest_rms_is_kept(monkeypatch):
     OpenCV runs it."""
     zero_distortion = (cv2.fisheye.CALIB_FIX_K1 | cv2.fisheye.CALIB_FIX_K2 | cv2.fisheye.CALIB_FIX_K3
                        | cv2.fisheye.CALIB_FIX_K4)
-    result, calls = _fisheye_with_a_nonsense_first_result(
+    result, calls, _ = _fisheye_with_a_nonsense_first_result(
         monkeypatch, lambda K, flags, first: (first.copy(), flags | zero_distortion))
     assert len(calls) == 3 and result.ok and result.init.startswith('the FC_eq.d. camera')
     assert result.camera.fx == pytest.approx(MILD.f, rel=0.02) and result.opencv_rms < 0.2
@@ -371,8 +371,7 @@ def test_of_the_sound_retries_the_lowest_rms_is_kept(monkeypatch):
 
 
 def test_an_opencv_fisheye_result_contradicting_its_rms_is_retried(monkeypatch):
-    corners = synthetic_corners(MILD, 20, noise=0.05, seed=9, tilt_deg=(5, 45))
-    result, calls = _fisheye_with_a_nonsense_first_result(monkeypatch)
+    result, calls, corners = _fisheye_with_a_nonsense_first_result(monkeypatch)
     assert len(calls) >= 2 and result.ok
     assert any('retried' in n and 'contradicts' in n for n in result.notes), result.notes
     independent = _opencv_fisheye_rms(result, corners)
