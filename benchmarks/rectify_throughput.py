@@ -525,6 +525,29 @@ def stream_floor_lines(results):
     return lines
 
 
+def fault_lines(results):
+    """Page faults and CPU of each process under test per frame of the 30 fps phase, round by
+    round: a frame-sized block faulted in anew every frame shows here (core/ros_data/heap.py)."""
+    systems = [system for system in ('relay', 'remap_relay', 'node', 'baseline')
+               if any(r.get(system, {}).get('faults_per_frame') for r in results)]
+    if not systems:
+        return []
+    lines = ['### Page faults and CPU per frame at 30 fps (the process under test), round by round', '',
+             '| frame | enc | ' + ' | '.join(f'{s} faults / CPU ms' for s in systems) + ' |',
+             '|---|---|' + '---|' * len(systems)]
+
+    def cell(entry):
+        pairs = zip(entry.get('faults_per_frame') or [], entry.get('cpu_ms_per_frame') or [])
+        return ', '.join(f'{fmt(f, 0)} / {fmt(c, 1)}' for f, c in pairs) or 'n/a'
+
+    for r in results:
+        lines.append(f"| {r['size']} | {r['encoding']} | " + ' | '.join(cell(r.get(s, {})) for s in systems) + ' |')
+    lines += ['', 'Minor page faults and user + system CPU of the relay, remap relay or node process over the '
+              '30 fps phase (/proc/PID/stat), divided by the frames it delivered. Every process of the run '
+              'but the baseline sets glibc\'s allocator thresholds at start (`keep_frames_in_heap`).', '']
+    return lines
+
+
 def _run_settings(raw) -> tuple:
     """(quiet-budget minutes, attempts) of a run: recorded, or read from its command line."""
     command = ' '.join(raw.get('header', [''])[:1])
@@ -606,7 +629,9 @@ def combine_rounds(runs):
             'peak_rss_mib': max(r['peak_rss_mib'] for r in runs),
             'profile': next((r['profile'] for r in runs if r.get('profile')), None),
             'alive': all(r['alive'] for r in runs),
-            'non_finite_camera_info': sum(r.get('non_finite_camera_info', 0) for r in runs)}
+            'non_finite_camera_info': sum(r.get('non_finite_camera_info', 0) for r in runs),
+            'faults_per_frame': [r.get('p30_faults_per_frame') for r in runs],
+            'cpu_ms_per_frame': [r.get('p30_cpu_ms_per_frame') for r in runs]}
 
 
 def run_system(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir, attempts=3):
@@ -638,7 +663,10 @@ def _run_system_once(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir)
         s.warm_up()
         load = open('/proc/loadavg').read().split()[0]
         others = sm.OtherCpu()
+        faults, cpu = bc.proc_counters(s.target.pid)
         p30 = s.phase('30 fps', 30, cfg['p30_seconds'])
+        faults_after, cpu_after = bc.proc_counters(s.target.pid)
+        frames = max(1, len(p30.received))
         sat = s.phase('saturation', 0, cfg['sat_seconds'])
         rate, trials = max_sustained_rate(s, sat.output_rate, cfg['bisect_steps'], cfg['trial_seconds'])
         prof = None
@@ -647,6 +675,8 @@ def _run_system_once(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir)
             got, _ = profile_target(s, cfg['profile_seconds'], path, max(1.0, 0.9 * rate))
             prof = str(got) if got else None
         result = {'p30': p30.summary(), 'saturation': sat.summary(), 'max_rate': rate,
+                  'p30_faults_per_frame': (faults_after - faults) / frames,
+                  'p30_cpu_ms_per_frame': (cpu_after - cpu) * 1e3 / frames,
                   'trials': trials, 'peak_rss_mib': s.peak_rss(), 'rss_samples': s.rss[::4],
                   'profile': prof, 'alive': s.target.alive(), 'load_at_start': load,
                   'others_cores': others.cores()}
@@ -768,6 +798,7 @@ def render(json_path: Path, out: Path):
                    'subscriber take CPU from the system under test; ratios are from one run.', '']
         report += speedup_lines(results)
         report += stream_floor_lines(results)
+        report += fault_lines(results)
         report += load_lines(results, raw)
         report += profile_report(results)
     if 'compare' in raw:

@@ -97,6 +97,8 @@ def main(argv=None):
     if args.mode == 'remap':  # the node's calibration and maps, before any frame comes (as the node has them)
         from bench_common import node_calibration
         calibration, rectifier = node_calibration(args.width, args.height).for_size(args.width, args.height)
+    from bench_common import frames_in_heap
+    frames_in_heap()  # as the node's main() does
     rclpy.init(args=[sys.argv[0], *ros_args])
     node = Relay(args.mode, args.in_topic, args.out_topic, rectifier, calibration)
     print('RELAY READY', flush=True)

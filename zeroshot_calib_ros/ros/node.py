@@ -59,6 +59,7 @@ from ..core.ros_data.cdr_image import (CdrError, NotPlainCdr, SerializedImage, p
 from ..core.ros_data.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded,  # noqa: E402
                                           binned_roi_size, binning_or_roi_reason, check_frame,
                                           check_map_budget, default_map_budget_mb, image_array, map_bytes)
+from ..core.ros_data.heap import keep_frames_in_heap  # noqa: E402
 from ..core.ros_data.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
 from ..core.ros_data.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
                                              RECTIFICATION_PARAMETERS, Settings, number_in_range,
@@ -106,8 +107,9 @@ def _publish_serialized(publisher, buffer):
 class ZeroShotCalibNode(Node):
     """Publishes the zero-shot CameraInfo; rectifies image_raw into image_rect when asked."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, heap_text: str = 'allocator unchanged (the node was constructed outside main())', **kwargs):
         super().__init__(NODE_NAME, start_parameter_services=False, **kwargs)
+        self._heap_text = heap_text
         # Start-up (issue 14): what the first CameraInfo needs, then that CameraInfo, then the
         # map build, then the rest (services, the image endpoints, timers, the log: rclpy's
         # first log lines cost tens of ms each, so information lines wait until the CameraInfo
@@ -275,6 +277,7 @@ class ZeroShotCalibNode(Node):
             f' (maps at most max_map_memory_mb = {self._map_budget})',
             f'  calibration file: {self._file_state}',
             f'  frame path {self._frame_path_text()}',
+            f'  memory     {self._heap_text}',
         ])
 
     def _frame_path_text(self) -> str:
@@ -904,10 +907,12 @@ def main(args=None):
     if '-h' in user_args or '--help' in user_args:
         print(usage_text())
         return 0
+    # Process-wide, before rclpy allocates: frame-sized blocks stay in the heap (no page faults per frame)
+    heap_text = keep_frames_in_heap()
     rclpy.init(args=args)
     node = None
     try:
-        node = ZeroShotCalibNode()
+        node = ZeroShotCalibNode(heap_text=heap_text)
     except (SpecError, CalibrationFileError, ParameterException) as exc:
         print(f'{NODE_NAME}: error: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
