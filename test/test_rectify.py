@@ -299,6 +299,24 @@ def test_a_stream_that_changes_encoding_is_rectified_with_one_set_of_maps(versio
                                                      borderMode=cv2.BORDER_CONSTANT))
 
 
+def test_idle_remap_benchmark_sample_times_the_remap_after_every_kind_of_wait(capsys):
+    """benchmarks/idle_remap.py on one tiny frame per encoding (results/idle_remap.md is its run
+    at 1080p and 4K): a row per order and encoding with a time after each wait, in the header's order."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'benchmarks'))
+    import idle_remap
+    idle_remap.main(['--sizes', '96x54', '--rounds', '2'])
+    out = capsys.readouterr().out
+    header = next(line for line in out.splitlines() if line.startswith('| order |'))
+    assert [c.strip() for c in header.strip('|').split('|')[3:]] == [
+        'back to back', 'sleep 33 ms', 'spin 33 ms', 'sleep 33 ms, read 64 MB', 'sleep 33 ms, spin 3 ms']
+    rows = [[c.strip() for c in line.strip('|').split('|')] for line in out.splitlines() if '| 96x54 |' in line]
+    assert [(r[0], r[2]) for r in rows] == [('blocks', 'bgr8'), ('interleaved', 'bgr8'),
+                                            ('blocks', 'mono8'), ('interleaved', 'mono8')]
+    assert all(len(r) == 8 and all(float(x) > 0 for x in r[3:]) for r in rows)
+
+
 def test_remap_kernels_benchmark_sample_reports_every_candidate_and_the_rule_in_force(capsys):
     """benchmarks/remap_kernels.py on one tiny frame per encoding (the results file is its full
     sweep): a row per candidate, the Rectifier's own call among them, and the rule this OpenCV

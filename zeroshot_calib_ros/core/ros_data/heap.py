@@ -6,14 +6,16 @@ both once the frame is done. glibc serves a block of at least ``M_MMAP_THRESHOLD
 mmap and returns it to the kernel when freed; below that threshold a freed block stays in the
 heap unless the free space at the top of the heap exceeds ``M_TRIM_THRESHOLD``, which is then
 returned too. Either way every page of the next frame is faulted in again: at 1080p bgr8 two
-6.2 MB blocks per frame are 3,006 page faults a frame. glibc adjusts both thresholds itself (each
-mmapped block freed raises the mmap threshold to its size and the trim threshold to twice that),
-so whether a process faults depends on which blocks it happened to free before: the same node,
-started twice in one run at 1080p bgr8 30 fps, faulted 3,006 times a frame and spent 19.6 ms of
-CPU a frame (p50 latency 25.75 ms), or faulted none and spent 13.5 ms (22.21 ms).
+6.2 MB blocks per frame are about 3,000 page faults a frame (test/test_heap.py). glibc adjusts
+both thresholds itself (each mmapped block freed raises the mmap threshold to its size and the
+trim threshold to twice that), so whether a process faults depends on which blocks it happened
+to free before. In earlier runs the same node's latency at 1080p bgr8 30 fps swung between
+processes (28.92 and 32.78 ms in the two rounds of one run); in benchmarks/results/
+serialized_path.md the previous node, which leaves the thresholds alone, faulted 2,263 times a
+frame in one of its two rounds and not at all in the other.
 
 ``keep_frames_in_heap`` sets the thresholds where glibc's own rule ends at most (mmap threshold
-32 MiB, its largest on 64-bit hosts; trim threshold twice that), once, at start: blocks below
+32 MiB, the ceiling of that rule on 64-bit hosts; trim threshold twice that), once, at start: blocks below
 32 MiB (a 4K bgr8 frame is 24.9 MB) are reused from the heap frame after frame, and up to 64 MiB
 of freed blocks are kept for the next frame instead of being returned to the kernel.
 """
@@ -25,7 +27,7 @@ from typing import Optional
 M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
 MMAP_THRESHOLD_BYTES = 32 << 20
-"""glibc's DEFAULT_MMAP_THRESHOLD_MAX on 64-bit hosts: mallopt refuses a larger one."""
+"""glibc's DEFAULT_MMAP_THRESHOLD_MAX on 64-bit hosts, the highest its dynamic rule goes."""
 TRIM_THRESHOLD_BYTES = 2 * MMAP_THRESHOLD_BYTES
 """What glibc's dynamic rule sets with that mmap threshold."""
 _USER_SETTINGS = ('MALLOC_MMAP_THRESHOLD_', 'MALLOC_TRIM_THRESHOLD_')
