@@ -567,9 +567,9 @@ MUTANTS = [
     dict(
         id='node-diagnostics-rectified-counted-as-received',
         file=f'{ROS}/node.py',
-        old=("        _publish_serialized(self._rect_pub, self._rect_serialized.buffer)\n"
+        old=("        publish_serialized(self._rect_pub, self._rect_serialized.buffer)\n"
              "        self._stats['frames_rectified'] += 1"),
-        new=("        _publish_serialized(self._rect_pub, self._rect_serialized.buffer)\n"
+        new=("        publish_serialized(self._rect_pub, self._rect_serialized.buffer)\n"
              "        self._stats['frames_received'] += 1"),
         behaviour='/diagnostics: frames received / rectified / skipped by reason',
         tests=['test/test_node_observable.py::test_diagnostics_count_the_frames_received_and_rectified'],

@@ -296,9 +296,9 @@ PROFILE_CATEGORIES = [
     ('cv2.remap (Rectifier.rectify)', lambda st: 'Rectifier.rectify' in st),
     # (_publish_rectified: the message path's; _publish_rectified_serialized: the serialized path's)
     ('publish image_rect (convert, serialise, write)', lambda st: '_publish_rectified' in st and (
-        'publish (' in st or '_publish_serialized' in st)),
+        'publish (' in st or 'publish_serialized' in st)),
     ('publish CameraInfo', lambda st: any(f in st for f in _FRAME_CALLBACKS) and (
-        'Publisher.publish' in st or '_publish_serialized' in st)),
+        'Publisher.publish' in st or 'publish_serialized' in st)),
     ('other Python in the frame callback', lambda st: any(f in st for f in _FRAME_CALLBACKS)),
     ('take image_raw (deserialise into Python)', lambda st: '_take_subscription (' in st),
     ('executor waiting (idle)', lambda st: '_wait_for_ready_callbacks' in st and 'handler' not in st),

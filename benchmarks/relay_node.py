@@ -70,18 +70,17 @@ class Relay(Node):
         from zeroshot_calib_ros.core.ros_data.cdr_image import parse_image, patch_stamp, pixel_bytes
         from zeroshot_calib_ros.core.ros_data.image_frames import image_array
         from zeroshot_calib_ros.ros.messages import serialized_camera_info
+        from zeroshot_calib_ros.ros.node import publish_serialized
 
         header = parse_image(raw)  # a few microseconds; the same frame layout throughout a run
         if self._info is None or self._info[0] != header.frame_id:
             self._info = (header.frame_id, serialized_camera_info(self._calibration, header.frame_id))
         patch_stamp(self._info[1], header.sec, header.nanosec)
-        with self._info_pub.handle:
-            self._info_pub.handle.publish_raw(self._info[1])
+        publish_serialized(self._info_pub, self._info[1])
         image = image_array(pixel_bytes(raw, header), header.width, header.height, header.step, header.encoding)
         out = self._rect.prepare(header.sec, header.nanosec, header.frame_id, header.encoding, image.shape, image.dtype)
         self._rectifier.rectify(image, out=out)
-        with self._pub.handle:
-            self._pub.handle.publish_raw(self._rect.buffer)
+        publish_serialized(self._pub, self._rect.buffer)
         self.count += 1
 
 
@@ -93,12 +92,11 @@ def main(argv=None):
     p.add_argument('--width', type=int, default=1920, help='frame width of --mode remap')
     p.add_argument('--height', type=int, default=1080, help='frame height of --mode remap')
     args, ros_args = p.parse_known_args(argv)
+    from bench_common import frames_in_heap, node_calibration
+    frames_in_heap()  # first, as the node's main() does
     calibration = rectifier = None
     if args.mode == 'remap':  # the node's calibration and maps, before any frame comes (as the node has them)
-        from bench_common import node_calibration
         calibration, rectifier = node_calibration(args.width, args.height).for_size(args.width, args.height)
-    from bench_common import frames_in_heap
-    frames_in_heap()  # as the node's main() does
     rclpy.init(args=[sys.argv[0], *ros_args])
     node = Relay(args.mode, args.in_topic, args.out_topic, rectifier, calibration)
     print('RELAY READY', flush=True)

@@ -2,6 +2,7 @@
 allocates and frees frames costs no page faults once the allocator is set, whatever the process
 freed before. Each case runs in a fresh interpreter: glibc's thresholds are process-wide and
 move with what a process has freed."""
+import json
 import os
 import platform
 import subprocess
@@ -36,7 +37,6 @@ print(json.dumps({'said': said, 'faults': faults}))
 
 
 def stream_faults(mode, frame_bytes, **env):
-    import json
     environ = {k: v for k, v in os.environ.items() if not k.startswith('MALLOC_') and k != 'GLIBC_TUNABLES'}
     environ.update(PYTHONPATH=str(REPO), **env)
     out = subprocess.run([sys.executable, '-c', STREAM, mode, str(frame_bytes)], env=environ,

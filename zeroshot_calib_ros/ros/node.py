@@ -95,7 +95,7 @@ def frame_path_choice(environ=os.environ) -> tuple:
     return True, ''
 
 
-def _publish_serialized(publisher, buffer):
+def publish_serialized(publisher, buffer):
     """Publish a serialized message (``bytes`` or ``bytearray``) without another copy:
     rclpy's Publisher.publish takes ``bytes`` only, its handle's publish_raw a bytearray too
     (copied into the middleware before it returns, so the buffer can be reused)."""
@@ -389,7 +389,7 @@ class ZeroShotCalibNode(Node):
         calibration = self._frame_calibration(active, width, height, header.step, header.encoding, header.data_size)
         if calibration is None:
             return
-        _publish_serialized(self._info_pub, self._serialized_info_for(calibration, header))
+        publish_serialized(self._info_pub, self._serialized_info_for(calibration, header))
         self._stats['camera_info_published'] += 1
         if self._refiner is not None:  # raw is an immutable bytes object: its pixels are held, not copied
             self._offer_frame(pixel_bytes(raw, header), width, height, header.step, header.encoding,
@@ -501,7 +501,7 @@ class ZeroShotCalibNode(Node):
         out = self._rect_serialized.prepare(header.sec, header.nanosec, header.frame_id, header.encoding,
                                             image.shape, image.dtype)
         rectifier.rectify(image, out=out)
-        _publish_serialized(self._rect_pub, self._rect_serialized.buffer)
+        publish_serialized(self._rect_pub, self._rect_serialized.buffer)
         self._stats['frames_rectified'] += 1
 
     def _publish_rectified(self, msg: Image, rectifier):
