@@ -738,7 +738,12 @@ def test_readme_table2_is_the_benchmark_output_and_opencv_measures_its_last_colu
     printed = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'paper_table2.py')], capture_output=True,
                              text=True, env=env, timeout=120)
     assert printed.returncode == 0, printed.stderr
-    assert markdown_rows(printed.stdout)[1:] == rows
+    benchmark_rows = markdown_rows(printed.stdout)[1:]
+    # every column to the letter but the fit error, which is compared in pixels (its low digits
+    # vary with the CPU and BLAS: 5.8e-06 on one machine, 2.9e-05 on another, both "< 0.0001")
+    assert [r[:-1] for r in benchmark_rows] == [r[:-1] for r in rows]
+    for ours, readme in zip(benchmark_rows, rows):
+        assert _fit_error_px(ours[-1]) == pytest.approx(_fit_error_px(readme[-1]), abs=1e-4)
     assert [r[0] for r in rows] == [r['camera'] for r in TABLE2]
     for cells, paper in zip(rows, TABLE2):
         assert cells[1] == f"{int(paper['width'])} x {int(paper['height'])}"
@@ -755,7 +760,12 @@ def test_readme_table2_is_the_benchmark_output_and_opencv_measures_its_last_colu
                                               calibration.K, calibration.D.reshape(4, 1))[0][0]
         error = np.linalg.norm(projected - pixels, axis=1).max()
         assert error < 0.01, paper['camera']
-        assert error == pytest.approx(float(cells[9]), rel=0.05), (paper['camera'], error, cells[9])
+        assert error == pytest.approx(_fit_error_px(cells[9]), abs=1e-4), (paper['camera'], error, cells[9])
+
+
+def _fit_error_px(cell: str) -> float:
+    """A fit-error cell of the Table 2 section: '0.0077', or '< 0.0001' (taken as 0)."""
+    return 0.0 if cell == '< 0.0001' else float(cell)
 
 
 def test_c922_eq7_value_is_what_vfov_43_3_gives():

@@ -55,20 +55,36 @@ def _remez(A: np.ndarray, b: np.ndarray, iterations: int = 200):
     candidates = np.flatnonzero(np.any(A != 0, axis=1) | (b != 0))
     if len(candidates) < m + 1:
         return None
-    ref = candidates[np.round(np.linspace(0, len(candidates) - 1, m + 1)).astype(int)]
+    # Every column vanishes at theta = 0, so near it the error is ~0 whatever x is: a reference
+    # sample there makes the levelled system singular to rounding (level ~1e-18, its sign noise),
+    # and the exchange then cycles between two references. The first reference is spread over
+    # (0, max] (k / (m + 1) of the way, k = 1..m+1): the alternation points of these fits lie
+    # there.
+    ref = candidates[np.round(np.arange(1, m + 2) * (len(candidates) - 1) / (m + 1)).astype(int)]
     signs = (-1.0) ** np.arange(m + 1)
+    # What rounding leaves of a residual: b - A x cancels terms of the size of b, so a levelled
+    # error below this is as good as zero, and two errors closer than this are equal.
+    noise = 1e-12 * float(np.max(np.abs(b)))
+    best_level = -1.0
     for _ in range(iterations):
         try:
             solution = np.linalg.solve(np.c_[A[ref], signs], b[ref])
         except np.linalg.LinAlgError:
             return None
         x, level = solution[:m], abs(solution[m])
+        if not np.all(np.isfinite(solution)):
+            return None
         r = b - A @ x
         j = int(np.argmax(np.abs(r)))
-        if abs(r[j]) <= level * (1 + CONVERGED) + 1e-300:
+        if abs(r[j]) <= level * (1 + CONVERGED) + noise:
             return x / scale
         if j in ref:  # the levelled system is solved only to rounding: that is convergence
-            return x / scale if abs(r[j]) <= level * (1 + 1e-6) else None
+            return x / scale if abs(r[j]) <= level * (1 + 1e-6) + noise else None
+        # The levelled error of an exchange never decreases (de la Vallee Poussin); a decrease
+        # beyond rounding means the exchange is lost in rounding: give up, the caller falls back.
+        if level < best_level - noise:
+            return None
+        best_level = max(best_level, level)
         s = np.sign(r[j])
         ref_signs = np.sign(r[ref])
         k = int(np.searchsorted(ref, j))
