@@ -381,12 +381,13 @@ def _yaml_file_name(name):
 
 def _solve_batch(args):
     """One JSON object per camera row; a bad row reports an error object and the rest go on. The
-    --yaml-dir files are written only when every row has succeeded (else none, and a warning
-    says so)."""
+    --yaml-dir files are written only when every row has been solved (else none, and a warning
+    says so); a file that cannot be written is its row's error, and the records with 'yaml' are
+    the files written."""
     failures = 0
     columns, rows = _batch_rows(args.batch)
     written = {}  # file name (case-folded) -> (row, name) of the row that writes it
-    outputs = []  # (row, name, JSON record, its warnings, (calibration, path) or None)
+    outputs = []  # (row, line, name, JSON record, its warnings, (calibration, path) or None)
     for number, line, cells in rows:
         name = f'camera_{number}'
         try:
@@ -415,29 +416,29 @@ def _solve_batch(args):
                 path = os.path.join(args.yaml_dir, file_name)
                 written[key] = (number, name)
                 record['yaml'] = path
-                outputs.append((number, name, record, warnings, (calibration, path)))
+                outputs.append((number, line, name, record, warnings, (calibration, path)))
             else:
-                outputs.append((number, name, record, warnings, None))
+                outputs.append((number, line, name, record, warnings, None))
         except (CliError, SpecError, CalibrationFileError, NoConvergence, ValueError) as exc:
             failures += 1
             record = {'name': name, 'row': number, 'line': line, 'error': ' '.join(str(exc).split())}
-            outputs.append((number, name, record, [], None))
-    if failures and written:
-        for _, _, record, _, _ in outputs:
+            outputs.append((number, line, name, record, [], None))
+    bad_rows = failures
+    if bad_rows and written:
+        for _, _, _, record, _, _ in outputs:
             record.pop('yaml', None)
-    saved = []
-    for number, name, record, warnings, output in outputs:
-        if output is not None and not failures:
+    for number, line, name, record, warnings, output in outputs:
+        if output is not None and not bad_rows:  # a failed write: that row's error (its record has no 'yaml')
             try:
                 _save_calibration(*output)
             except CliError as exc:
-                raise CliError(f'row {number} ({name}): {exc} ({len(saved)} files written before it'
-                               + (f', the last {saved[-1]})' if saved else ')')) from None
-            saved.append(output[1])
+                failures += 1
+                record = {'name': name, 'row': number, 'line': line, 'error': ' '.join(str(exc).split())}
+                warnings = []
         print(json.dumps(record), flush=True)
         _print_warnings(warnings, f'row {number} ({name}): ')
-    if failures and written:
-        _print_warnings([f'{failures} of {len(rows)} rows failed: no files written to {args.yaml_dir} (fix '
+    if bad_rows and written:
+        _print_warnings([f'{bad_rows} of {len(rows)} rows failed: no files written to {args.yaml_dir} (fix '
                          'the rows and run again)'])
     return 1 if failures else 0
 
@@ -1101,8 +1102,8 @@ def _check_options(args):
         if value is None:
             continue
         if not (math.isfinite(value) and (low <= value if low_included else low < value) and value <= high):
-            allowed = 'from 0 to 1' if name == 'balance' else 'a finite number greater than 0'
-            raise CliError(f'--{name.replace("_", "-")} {value:g} is invalid: allowed: {allowed}')
+            allowed = '0 to 1' if name == 'balance' else 'greater than 0 (finite)'
+            raise CliError(f'--{name.replace("_", "-")}: {name} = {value!r} is invalid: allowed: {allowed}')
     path = getattr(args, 'yaml', None)
     if path is not None:
         ext = os.path.splitext(path)[1]
