@@ -2,7 +2,8 @@
 below them (or modules of their own layer), siblings never import each other, the core never
 imports ROS, and every module belongs to a layer (a new module must be placed in one).
 
-    0 core/lens, core/atomic_file     lens models, their ROS fits; writing files (and the version)
+    0 core/lens, core/atomic_file,    lens models, their ROS fits; writing files and reading them
+      core/file_input                 bounded (and the version)
     1 core/zeroshot                   spec sheet -> camera (the paper's solver, presets, wide model)
     2 core/checkerboard, core/lines   calibration evidence: chessboard images, straight lines
     3 core/estimation                 the MAP fit over all evidence, its uncertainty, the quality gate
@@ -17,7 +18,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / 'zeroshot_calib_ros'
 LAYERS = {
-    'core.lens': 0, 'core.atomic_file': 0,
+    'core.lens': 0, 'core.atomic_file': 0, 'core.file_input': 0,
     'core.zeroshot': 1,
     'core.checkerboard': 2, 'core.lines': 2,
     'core.estimation': 3,

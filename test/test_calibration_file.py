@@ -4,6 +4,7 @@ camera_info_manager resolves them, binning / roi, hostile content, the zero-D ru
 References are the C++ sources of ros-perception/image_common: camera_calibration_parsers
 parse_yml.cpp / parse_ini.cpp / parse.cpp and camera_info_manager.cpp. Samples below are written
 by hand from their emitters and format strings, not from our own output."""
+import time
 import os
 import re
 
@@ -592,3 +593,36 @@ def test_bad_constructor_arguments_name_the_field(changes, field):
     with pytest.raises(CalibrationFileError, match=field) as excinfo:
         sample(**changes)
     one_line_error(excinfo)
+
+
+def _laughs(levels=9):
+    """'Billion laughs': a few hundred bytes of YAML whose aliases stand for 9**levels strings."""
+    names = 'abcdefghijklmnop'
+    lines = ['a: &a ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]']
+    for previous, name in zip(names, names[1:levels]):
+        lines.append(f'{name}: &{name} [' + ','.join([f'*{previous}'] * 9) + ']')
+    return '\n'.join(lines) + f'\nimage_width: *{names[levels - 1]}\n'
+
+
+def test_a_yaml_alias_bomb_is_refused_at_once(tmp_path):
+    path = tmp_path / 'bomb.yaml'
+    path.write_text(_laughs())
+    start = time.monotonic()
+    with pytest.raises(CalibrationFileError, match='aliases expand') as excinfo:
+        CameraCalibration.load(str(path))
+    assert str(path) in one_line_error(excinfo)
+    assert time.monotonic() - start < 2.0
+    small = _laughs(2).replace('image_width: *b', 'image_width: 1')  # 90 values: aliases as such are fine
+    with pytest.raises(CalibrationFileError, match='image_height is missing'):
+        CameraCalibration.from_yaml_text(small)
+
+
+def test_messages_show_huge_nested_values_in_bounded_time():
+    """A value that is small in memory (shared lists) but huge written out, given to from_dict."""
+    value = ['lol'] * 9
+    for _ in range(8):
+        value = [value] * 9
+    start = time.monotonic()
+    with pytest.raises(CalibrationFileError, match='image_width') as excinfo:
+        CameraCalibration.from_dict({'image_width': value})
+    assert len(one_line_error(excinfo)) < 300 and time.monotonic() - start < 2.0

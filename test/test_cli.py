@@ -51,13 +51,15 @@ def test_batch_reports_bad_rows_and_goes_on(tmp_path, capsys):
                         'typo,1280,72O,90,60,\n')
     yaml_dir = tmp_path / 'yaml'
     assert main(['solve', '--batch', str(csv_path), '--yaml-dir', str(yaml_dir)]) == 1
-    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    out, err = capsys.readouterr()
+    lines = [json.loads(line) for line in out.splitlines()]
     assert [r['name'] for r in lines] == ['w1', 'broken', 'c905', 'typo']
     assert 'error' not in lines[0] and lines[0]['f'] == pytest.approx(876.0, abs=0.05)
     assert lines[1]['row'] == 2 and 'hfov = -5.0' in lines[1]['error']
     assert lines[2]['omega'] == 0
     assert "height = '72O'" in lines[3]['error']
-    assert sorted(p.name for p in yaml_dir.iterdir()) == ['c905.yaml', 'w1.yaml']
+    assert not yaml_dir.exists(), 'no file is written while a row fails (so a fixed rerun gives the whole set)'
+    assert 'no files written' in err
 
 
 def test_rectify_an_image_file(tmp_path):
@@ -183,6 +185,11 @@ def test_batch_yaml_names_stay_inside_the_directory(tmp_path, capsys):
     assert failed == ['w1', 'CAM_1']  # only the collisions: any other name gives a safe file
     assert 'w1.yaml' in records[5]['error'] and 'row 5' in records[5]['error']
     assert "'Cam_1'" in records[7]['error']
+    assert not out_dir.exists()  # a row failed: no file written
+    text = text.replace('w1,1280,720,63.1,\n', '').replace('CAM_1,1920,1080,118,69\n', '')
+    status, out, err = run_main(batch(tmp_path, text, '--yaml-dir', str(out_dir)), capsys)
+    assert status == 0, err
+    records = [json.loads(line) for line in out.splitlines()]
     written = sorted(p.name for p in out_dir.iterdir())
     assert len(written) == 7 and all(len(n) <= 105 for n in written)
     for record in records:

@@ -4,6 +4,7 @@ import math
 import re
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -126,3 +127,29 @@ def test_spec_with_preset_overrides_field_by_field():
     assert (spec.width, spec.height, spec.hfov, spec.vfov) == (1920, 1080, 118.0, 70.0)
     assert spec_with_preset(None, width=640, height=480, hfov=90.0) == spec_with_preset('', width=640,
                                                                                         height=480, hfov=90.0)
+
+
+def test_a_preset_at_another_aspect_ratio_is_refused_everywhere(tmp_path, capsys):
+    """A preset's FOVs belong to its aspect ratio: solve, refine and the node's parameters refuse
+    another one (naming the preset's resolution); the same aspect ratio at another size is fine."""
+    from zeroshot_calib_ros.core.ros_data.node_parameters import PARAMETERS, Settings
+    from zeroshot_calib_ros.core.zeroshot.presets import spec_with_preset
+    with pytest.raises(SpecError, match='1920x1080'):
+        spec_with_preset('gopro_hero9_wide', width=1440, height=1080)
+    with pytest.raises(SpecError, match='1920x1080'):
+        spec_with_preset('gopro_hero9_wide', width=1440)
+    assert spec_with_preset('gopro_hero9_wide', width=1280, height=720).hfov == 118.0
+    values = {name: parameter.default for name, parameter in PARAMETERS.items()}
+    values.update(preset='gopro_hero9_wide', width=1440, height=1080)
+    with pytest.raises(SpecError, match='1920x1080'):
+        Settings.from_values(values)
+    values.update(width=1280, height=720)
+    assert Settings.from_values(values).spec.width == 1280
+    assert main(['solve', '--preset', 'gopro_hero9_wide', '--width', '1440', '--height', '1080']) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and 'gopro_hero9_wide' in err[0] and '1920x1080' in err[0], err
+    image = tmp_path / 'in.png'
+    cv2.imwrite(str(image), np.zeros((1080, 1440), np.uint8))
+    assert main(['refine', str(image), '--preset', 'gopro_hero9_wide']) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and 'gopro_hero9_wide' in err[0] and '1920x1080' in err[0], err

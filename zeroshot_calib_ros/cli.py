@@ -26,14 +26,19 @@ import os
 import re
 import sys
 
-import cv2
-import numpy as np
+# OpenCV's own pixel limit, read when cv2 loads (the header check of core/file_input.py comes
+# first; this covers formats whose header it does not parse). A user's setting wins.
+os.environ.setdefault('OPENCV_IO_MAX_IMAGE_PIXELS', '50000000')
 
-from . import __version__
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from . import __version__  # noqa: E402
 
 from .core.checkerboard.calibration import as_solution, calibrate
-from .core.ros_data.calibration_file import (DISTORTION_MODELS, CalibrationFileError, CameraCalibration,
-                                    json_safe, solution_summary, summary_text)
+from .core.ros_data.calibration_file import (DISTORTION_MODELS, FORMATS, CalibrationFileError, CameraCalibration,
+                                    MAX_FILE_BYTES, json_safe, solution_summary, summary_text)
+from .core.file_input import MAX_IMAGE_PIXELS, InputFileError, read_capped, read_image
 from .core.lens.models import RadialCamera, camera_from_calibration
 from .core.checkerboard.corners import CornerSet, detect_corners, parse_board
 from .core.checkerboard.evaluation import evaluate, evaluation_to_dict, format_tables, reprojection_error
@@ -43,6 +48,10 @@ from .core.zeroshot.presets import load_presets, spec_with_preset
 from .core.ros_data.rectify import INTERPOLATIONS, Rectifier, new_camera_matrix
 from .core.zeroshot.solver import PROJECTION_CHOICES, NoConvergence, solve_zero_shot
 from .core.zeroshot.spec import CameraSpec, SpecError
+
+
+IMAGE_BUDGET = f'{MAX_IMAGE_PIXELS // 1_000_000} megapixels'
+"""The pixel budget of every image read, as --help and the errors state it."""
 
 
 class CliError(Exception):
@@ -56,8 +65,17 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f'{self.prog}: error: {" ".join(str(message).split())} (see {self.prog} --help)\n')
 
 
+_DECIMAL = re.compile(r'[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?\Z')
+_NON_FINITE = re.compile(r'[-+]?(?:inf|infinity|nan)\Z', re.IGNORECASE)
+_INTEGER = re.compile(r'[-+]?[0-9]+\Z')
+
+
 def _number(text):
-    """A float argument (nan / inf pass here: the spec checks name the allowed range)."""
+    """A float argument in ASCII decimal notation (Python's float() also takes '1_18', Arabic-Indic
+    or fullwidth digits and surrounding spaces; those are refused). nan / inf pass here: the spec
+    checks name the allowed range."""
+    if not (_DECIMAL.match(text) or _NON_FINITE.match(text)):
+        raise ValueError(f'not an ASCII decimal number: {text!r}')
     return float(text)
 
 
@@ -67,14 +85,23 @@ _number.__name__ = 'number'
 def _whole_number(text):
     """An image side: an integer, or an integral float such as 1920.0 (1920.5 is refused by
     CameraSpec, which names the field and the range)."""
-    try:
+    if _INTEGER.match(text):
         return int(text)
-    except ValueError:
-        value = float(text)
-        return int(value) if math.isfinite(value) and value == int(value) else value
+    value = _number(text)
+    return int(value) if math.isfinite(value) and value == int(value) else value
 
 
 _whole_number.__name__ = 'whole number'
+
+
+def _integer(text):
+    """An integer argument, ASCII digits only."""
+    if not _INTEGER.match(text):
+        raise ValueError(f'not an ASCII integer: {text!r}')
+    return int(text)
+
+
+_integer.__name__ = 'integer'
 
 
 def _add_spec_arguments(parser, size_required=True):
@@ -242,11 +269,7 @@ _HEADER_CELL = re.compile(r'[A-Za-z_][A-Za-z0-9_ -]*\Z')
 
 
 def _is_number(text):
-    try:
-        float(text)
-        return True
-    except ValueError:
-        return False
+    return bool(_DECIMAL.match(text) or _NON_FINITE.match(text))
 
 
 def _is_header(cells):
@@ -273,27 +296,55 @@ def _batch_columns(cells, where):
     return columns
 
 
+MAX_BATCH_BYTES = 16 << 20
+"""Largest --batch file read (a camera a row: about 100,000 cameras)."""
+_CONTROL = re.compile('[\x00-\x08\x0b-\x1f\x7f-\x9f\u2028\u2029]')
+"""Characters refused in a CSV cell: control characters and line / paragraph separators (a quoted
+cell may hold a newline or a tab)."""
+
+
+def _csv_records(text):
+    """[(line number, cells or csv.Error)] of CSV text: records end only at \\n or \\r\\n outside
+    quotes (a quoted cell may span lines, as spreadsheets write it); blank and # lines skipped."""
+    lines = text.split('\n')
+    if lines and lines[-1] == '':
+        lines.pop()
+    lines = [line[:-1] if line.endswith('\r') else line for line in lines]
+    records, i = [], 0
+    while i < len(lines):
+        start, chunk = i + 1, [lines[i]]
+        i += 1
+        if not chunk[0].strip() or chunk[0].lstrip().startswith('#'):
+            continue
+        while sum(part.count('"') for part in chunk) % 2 and i < len(lines):
+            chunk.append(lines[i])
+            i += 1
+        try:
+            cells = next(csv.reader(['\n'.join(chunk)], strict=True))
+            bad = next((c for c in cells if _CONTROL.search(c)), None)
+            if bad is not None:
+                char = _CONTROL.search(bad).group()
+                raise csv.Error(f'a cell holds the control character U+{ord(char):04X} (lines end only at '
+                                '\\n or \\r\\n): allowed: printable text')
+        except csv.Error as exc:
+            where = f'line {start}' if len(chunk) == 1 else f'lines {start}-{start + len(chunk) - 1}'
+            cells = csv.Error(f'{where}: {exc}')
+        records.append((start, cells))
+    return records
+
+
 def _batch_rows(path):
     """(columns, [(row number, line number, cells or csv error)]) of a --batch file."""
     try:
-        with open(path, 'rb') as f:
-            data = f.read()
-    except OSError as exc:
-        raise CliError(f'cannot read {path}: {exc.strerror or exc}') from None
+        data = read_capped(path, MAX_BATCH_BYTES, 'a CSV file, one camera a row')
+    except InputFileError as exc:
+        raise CliError(str(exc)) from None
     try:
         text = data.decode('utf-8-sig')
     except UnicodeDecodeError as exc:
         raise CliError(f'cannot read {path}: not UTF-8 text (byte 0x{data[exc.start]:02x} at offset '
                        f'{exc.start}): allowed: a UTF-8 CSV file') from None
-    rows = []
-    for line_number, line in enumerate(text.splitlines(), start=1):
-        if not line.strip() or line.lstrip().startswith('#'):
-            continue
-        try:
-            cells = next(csv.reader([line], strict=True))
-        except csv.Error as exc:
-            cells = exc
-        rows.append((line_number, cells))
+    rows = _csv_records(text)
     columns = list(BATCH_POSITIONAL)
     if rows and not isinstance(rows[0][1], Exception) and _is_header(rows[0][1]):
         columns = _batch_columns(rows[0][1], f'{path} line {rows[0][0]}')
@@ -314,7 +365,7 @@ def _batch_spec(row):
         except ValueError:
             raise SpecError(key, value, allowed) from None
     sides = {k: cell(k, _whole_number, 'a whole number of pixels') for k in ('width', 'height')}
-    return CameraSpec(**sides, **{k: cell(k, float, 'a number') for k in BATCH_COLUMNS[3:]})
+    return CameraSpec(**sides, **{k: cell(k, _number, 'a number') for k in BATCH_COLUMNS[3:]})
 
 
 def _yaml_file_name(name):
@@ -329,10 +380,14 @@ def _yaml_file_name(name):
 
 
 def _solve_batch(args):
-    """One JSON object per camera row; a bad row reports an error object and the rest go on."""
+    """One JSON object per camera row; a bad row reports an error object and the rest go on. The
+    --yaml-dir files are written only when every row has been solved (else none, and a warning
+    says so); a file that cannot be written is its row's error, and the records with 'yaml' are
+    the files written."""
     failures = 0
     columns, rows = _batch_rows(args.batch)
-    written = {}  # file name (case-folded) -> (row, name) of the row that wrote it
+    written = {}  # file name (case-folded) -> (row, name) of the row that writes it
+    outputs = []  # (row, line, name, JSON record, its warnings, (calibration, path) or None)
     for number, line, cells in rows:
         name = f'camera_{number}'
         try:
@@ -359,15 +414,32 @@ def _solve_batch(args):
                     raise CliError(f'the name {name!r} gives the file {file_name}, already written for row '
                                    f'{first_row} ({first_name!r}): allowed: each name once (file names ignore case)')
                 path = os.path.join(args.yaml_dir, file_name)
-                _save_calibration(calibration, path)
                 written[key] = (number, name)
                 record['yaml'] = path
+                outputs.append((number, line, name, record, warnings, (calibration, path)))
+            else:
+                outputs.append((number, line, name, record, warnings, None))
         except (CliError, SpecError, CalibrationFileError, NoConvergence, ValueError) as exc:
             failures += 1
             record = {'name': name, 'row': number, 'line': line, 'error': ' '.join(str(exc).split())}
-            warnings = []
+            outputs.append((number, line, name, record, [], None))
+    bad_rows = failures
+    if bad_rows and written:
+        for _, _, _, record, _, _ in outputs:
+            record.pop('yaml', None)
+    for number, line, name, record, warnings, output in outputs:
+        if output is not None and not bad_rows:  # a failed write: that row's error (its record has no 'yaml')
+            try:
+                _save_calibration(*output)
+            except CliError as exc:
+                failures += 1
+                record = {'name': name, 'row': number, 'line': line, 'error': ' '.join(str(exc).split())}
+                warnings = []
         print(json.dumps(record), flush=True)
         _print_warnings(warnings, f'row {number} ({name}): ')
+    if bad_rows and written:
+        _print_warnings([f'{bad_rows} of {len(rows)} rows failed: no files written to {args.yaml_dir} (fix '
+                         'the rows and run again)'])
     return 1 if failures else 0
 
 
@@ -399,19 +471,13 @@ def _check_output_image(path):
         raise CliError(f'-o {path}: cannot write image: it is a directory')
 
 
-def _read_image(path):
-    if not os.path.isfile(path):
-        raise CliError(f'cannot read image {path}: '
-                       + ('it is a directory' if os.path.isdir(path) else 'no such file'))
-    if not os.access(path, os.R_OK):
-        raise CliError(f'cannot read image {path}: permission denied')
+def _read_image(path, finite=False):
+    """core/file_input.read_image: (image, sha1 of the file); every refusal one CliError naming
+    the file (a regular file, at most MAX_IMAGE_PIXELS, decoded completely)."""
     try:
-        image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-    except cv2.error as exc:
-        raise CliError(f'cannot read image {path}: {exc}') from None
-    if image is None or image.size == 0:
-        raise CliError(f'cannot read image {path}: not an image file OpenCV can decode')
-    return image
+        return read_image(path, cv2.IMREAD_UNCHANGED, finite=finite)
+    except InputFileError as exc:
+        raise CliError(str(exc)) from None
 
 
 def _load_calibration(path, option):
@@ -469,7 +535,7 @@ def _rectify_camera(args, width, height):
 
 def _cmd_rectify(args):
     _check_output_image(args.output)
-    image = _read_image(args.input)
+    image, _ = _read_image(args.input)
     height, width = image.shape[:2]
     camera, P = _rectify_camera(args, width, height)
     rectifier = Rectifier(camera, interpolation=args.interpolation, P=P)
@@ -536,8 +602,8 @@ def _refined_summary(result, spec, solution, args):
     return json_safe(summary), calibration
 
 
-def _debug_image(path, images, result, solution, args):
-    """The first image with the curves used (green) and rejected (red), and below it the image
+def _debug_image(images, result, solution, args):
+    """The canvas (written by the caller once everything has succeeded): the first image with the curves used (green) and rejected (red), and below it the image
     rectified with the zero-shot camera (left) and with the result (right)."""
     from .core.lines.detect import draw_curves
     curves = list(getattr(result, 'curves', None) or [])
@@ -552,24 +618,35 @@ def _debug_image(path, images, result, solution, args):
     for camera in (solution.camera, result.camera):
         rect = Rectifier(camera, P=P).rectify(images[0])
         rect = cv2.cvtColor(rect, cv2.COLOR_GRAY2BGR) if rect.ndim == 2 else rect[..., :3]
-        halves.append(cv2.resize(rect, (width // 2, height // 2), interpolation=cv2.INTER_AREA))
+        halves.append(cv2.resize(rect, (max(1, width // 2), max(1, height // 2)), interpolation=cv2.INTER_AREA))
     bottom = np.hstack(halves)
-    bottom = np.pad(bottom, ((0, 0), (0, width - bottom.shape[1]), (0, 0)))
-    canvas = np.vstack([top.astype(np.uint8), bottom.astype(np.uint8)])
-    if not cv2.imwrite(path, canvas):
-        raise CliError(f'--debug-image {path}: cannot write image')
+    bottom = np.pad(bottom, ((0, 0), (0, max(0, width - bottom.shape[1])), (0, 0)))
+    return np.vstack([top.astype(np.uint8), bottom[:, :width].astype(np.uint8)])
 
 
 def _cmd_refine(args):
     from .core.estimation.refine import refine_from_images  # scipy.optimize: only when asked
     if args.debug_image:
         _check_output_image(args.debug_image)
-    images = [_read_image(path) for path in args.images]
+    images, seen = [], {}
+    for path in args.images:
+        key = os.path.realpath(path)
+        if key in seen:
+            _print_warnings([f'{path} is given more than once: counted once'])
+            continue
+        image, digest = _read_image(path, finite=True)
+        if digest in seen.values():
+            first = next(p for p, d in seen.items() if d == digest)
+            _print_warnings([f'{path} has the same content as {first}: counted once'])
+            seen[key] = digest
+            continue
+        seen[key] = digest
+        images.append(image)
     sizes = sorted({(im.shape[1], im.shape[0]) for im in images})
     if len(sizes) != 1:
         listed = ', '.join(f'{w}x{h}' for w, h in sizes)
         raise CliError(f'the images have different sizes ({listed}): allowed: images of one camera, one size')
-    images = [im if im.dtype == np.uint8 else cv2.convertScaleAbs(im, alpha=255.0 / max(1, int(im.max())))
+    images = [im if im.dtype == np.uint8 else cv2.convertScaleAbs(im, alpha=255.0 / max(1.0, float(im.max())))
               for im in images]
     (width, height), = sizes
     spec = _refine_spec(args, width, height)
@@ -584,10 +661,12 @@ def _cmd_refine(args):
             and not result.accepted:
         warnings.append(result.zero_shot_uncertainty.warning)
     summary['warning'] = warnings
-    if args.yaml:
+    canvas = _debug_image(images, result, solution, args) if args.debug_image else None
+    if args.yaml:  # written only now: every step has succeeded
         _save_calibration(calibration, args.yaml)
-    if args.debug_image:
-        _debug_image(args.debug_image, images, result, solution, args)
+    if canvas is not None and not cv2.imwrite(args.debug_image, canvas):
+        raise CliError(f'--debug-image {args.debug_image}: cannot write image'
+                       + (f' (--yaml {args.yaml} was written)' if args.yaml else ''))
     if args.json:
         print(json.dumps(summary))
     else:
@@ -603,19 +682,20 @@ def _cmd_refine(args):
 
 
 def _add_corner_arguments(parser):
-    parser.add_argument('images', nargs='*', help='chessboard images: files or glob patterns')
+    parser.add_argument('images', nargs='*', help=f'chessboard images: files or glob patterns (at most {IMAGE_BUDGET} '
+                        'each)')
     parser.add_argument('--corners', metavar='FILE',
                         help='a corners file (JSON, see docs/calibration.md) instead of images')
     parser.add_argument('--board', default='8x6',
                         help='inner corners COLSxROWS, as OpenCV patternSize (default 8x6)')
-    parser.add_argument('--square', type=float, default=0.108, help='square side in metres (default 0.108)')
+    parser.add_argument('--square', type=_number, default=0.108, help='square side in metres (default 0.108)')
     parser.add_argument('--skip-missing', action='store_true',
                         help='leave out (and list on stderr) images whose board is not found, '
                              'instead of failing')
     parser.add_argument('--save-corners', metavar='FILE', help='write the detected corners to FILE')
-    parser.add_argument('--hfov', type=float, help='spec-sheet horizontal field of view (deg)')
-    parser.add_argument('--vfov', type=float, help='spec-sheet vertical field of view (deg)')
-    parser.add_argument('--dfov', type=float, help='spec-sheet diagonal field of view (deg)')
+    parser.add_argument('--hfov', type=_number, help='spec-sheet horizontal field of view (deg)')
+    parser.add_argument('--vfov', type=_number, help='spec-sheet vertical field of view (deg)')
+    parser.add_argument('--dfov', type=_number, help='spec-sheet diagonal field of view (deg)')
 
 
 def _image_paths(patterns):
@@ -930,7 +1010,7 @@ def build_parser() -> argparse.ArgumentParser:
     presets.set_defaults(run=_cmd_presets)
 
     rectify = sub.add_parser('rectify', help='rectify an image file')
-    rectify.add_argument('input', help='input image')
+    rectify.add_argument('input', help=f'input image (at most {IMAGE_BUDGET})')
     rectify.add_argument('-o', '--output', required=True, help='output image')
     _add_spec_arguments(rectify, size_required=False)
     _add_output_arguments(rectify)
@@ -942,11 +1022,12 @@ def build_parser() -> argparse.ArgumentParser:
                          help='the camera of a calibration file (camera_calibration_parsers YAML or .ini) '
                               'instead of a spec; its P unless --balance / --fov-scale are given; an image '
                               'of another size with the same aspect ratio is scaled')
-    rectify.add_argument('--interpolation', type=int, default=1, choices=sorted(INTERPOLATIONS),
+    rectify.add_argument('--interpolation', type=_integer, default=1, choices=sorted(INTERPOLATIONS),
                          help='0 nearest, 1 linear, 2 cubic, 4 lanczos4 (default 1)')
     rectify.set_defaults(run=_cmd_rectify, model=None, balance=None, fov_scale=None)
     refine = sub.add_parser('refine', help='the spec sheet plus straight lines in ordinary images of the camera')
-    refine.add_argument('images', nargs='+', help='images of the camera (one size): rooms, streets, corridors')
+    refine.add_argument('images', nargs='+', help='images of the camera (one size): rooms, streets, corridors; '
+                        f'at most {IMAGE_BUDGET} each; an image given twice (same file or same content) counts once')
     refine.add_argument('--hfov', type=_number, help='horizontal field of view (deg)')
     refine.add_argument('--vfov', type=_number, help='vertical field of view (deg)')
     refine.add_argument('--dfov', type=_number, help='diagonal field of view (deg)')
@@ -1002,14 +1083,39 @@ def build_parser() -> argparse.ArgumentParser:
                          'as the reference camera)')
     ev.add_argument('--spec-from-model', choices=('equidistant', 'plumb_bob'),
                     help="read --spec-from's coefficients as this model (default: its distortion_model)")
-    ev.add_argument('--shots', type=int, default=1,
+    ev.add_argument('--shots', type=_integer, default=1,
                     help='images per calibration in Table 4 (1: single-shot, default; 0: no Table 4)')
-    ev.add_argument('--runs', type=int, help='only the first N single-shot runs (quicker, partial)')
+    ev.add_argument('--runs', type=_integer, help='only the first N single-shot runs (quicker, partial)')
     ev.add_argument('--name', help='camera name in the tables (default: the image folder / file name)')
     ev.add_argument('--json', action='store_true', help='print one JSON object')
     ev.add_argument('--progress', action='store_true', help='report progress on stderr')
     ev.set_defaults(run=_cmd_evaluate)
     return parser
+
+
+def _check_options(args):
+    """Every option whose range is known before any computation, so that a typo in the last option
+    does not cost a whole fit first."""
+    for name, low, low_included, high in (('balance', 0.0, True, 1.0), ('fov_scale', 0.0, False, math.inf),
+                                          ('fov_tolerance', 0.0, False, math.inf)):
+        value = getattr(args, name, None)
+        if value is None:
+            continue
+        if not (math.isfinite(value) and (low <= value if low_included else low < value) and value <= high):
+            allowed = '0 to 1' if name == 'balance' else 'greater than 0 (finite)'
+            raise CliError(f'--{name.replace("_", "-")}: {name} = {value!r} is invalid: allowed: {allowed}')
+    path = getattr(args, 'yaml', None)
+    if path is not None:
+        ext = os.path.splitext(path)[1]
+        if ext not in FORMATS:
+            raise CliError(f'--yaml {path}: unrecognized format {ext or "(no extension)"}: allowed: a file '
+                           'name ending in .yaml, .yml or .ini (camera_calibration_parsers)')
+        model = getattr(args, 'distortion_model', 'equidistant')
+        if FORMATS[ext] == 'ini' and model != 'plumb_bob':
+            raise CliError(f'--yaml {path}: the INI format holds plumb_bob only, not {model}: allowed: '
+                           '.yaml / .yml, or .ini with --distortion-model plumb_bob')
+        if os.path.isdir(path):
+            raise CliError(f'--yaml {path}: it is a directory: allowed: a file name')
 
 
 def _one_line(exc) -> str:
@@ -1022,6 +1128,7 @@ def main(argv=None) -> int:
     if hasattr(cv2, 'setLogLevel'):
         cv2.setLogLevel(1)  # fatal only: OpenCV's own warnings would be extra stderr lines; we report
     try:
+        _check_options(args)
         return args.run(args)
     except BrokenPipeError:  # output piped into `head`: not an error of ours
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

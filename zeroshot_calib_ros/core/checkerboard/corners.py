@@ -45,12 +45,15 @@ import cv2
 import numpy as np
 
 from ..atomic_file import write_atomically
+from ..file_input import InputFileError, read_capped, read_image
 
 CORNERS_FORMAT = 'zeroshot-calib-corners'
 CORNERS_VERSION = 1
 MIN_CORNERS_PER_IMAGE = 6
 """A board with fewer inner corners cannot constrain a pose and the intrinsics together."""
 MAX_BOARD_SIDE = 1000
+MAX_CORNERS_FILE_BYTES = 256 << 20
+"""Largest corners file read (1000 images of a 30 x 30 board take about 40 MB of JSON)."""
 
 _FIND_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
@@ -244,10 +247,11 @@ class CornerSet:
     @classmethod
     def load(cls, path: str) -> 'CornerSet':
         try:
-            with open(path) as f:
-                d = json.load(f)
-        except OSError as exc:
-            raise CornersError(f'cannot read corners file {path}: {exc.strerror}') from None
+            d = json.loads(read_capped(path, MAX_CORNERS_FILE_BYTES, 'a corners file (JSON)').decode('utf-8'))
+        except InputFileError as exc:
+            raise CornersError(str(exc).replace('cannot read ', 'cannot read corners file ', 1)) from None
+        except RecursionError:
+            raise CornersError(f'corners file {path} is not valid JSON: nested too deeply') from None
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise CornersError(f'corners file {path} is not valid JSON: {exc}') from None
         return cls.from_dict(d, f'corners file {path}')
@@ -300,9 +304,10 @@ def detect_corners(paths: Sequence[str], board: Board = Board(), skip_missing: b
     names, corners, missing = [], [], []
     size, first = None, None
     for path in paths:
-        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if gray is None:
-            raise CornersError(f'cannot read image {path}')
+        try:
+            gray, _ = read_image(str(path), cv2.IMREAD_GRAYSCALE)
+        except InputFileError as exc:
+            raise CornersError(str(exc)) from None
         this = (gray.shape[1], gray.shape[0])
         if size is None:
             size, first = this, str(path)
@@ -326,8 +331,9 @@ def _board_hint(path: str, board: Board) -> str:
     """When no image shows ``board``: the near board size (one more / fewer corner per side, e.g.
     squares counted instead of inner corners) that the first image does show, as a message tail
     ('' if none). Only OpenCV's classic detector with its fast check: a few quick calls."""
-    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if gray is None:
+    try:
+        gray, _ = read_image(str(path), cv2.IMREAD_GRAYSCALE)
+    except InputFileError:
         return ''
     c, r = board.cols, board.rows
     for cols, rows in ((c - 1, r - 1), (c + 1, r + 1), (c - 1, r), (c, r - 1), (c + 1, r), (c, r + 1)):

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import reprlib
 from dataclasses import dataclass, field
 from typing import List, Optional
 
@@ -29,6 +30,7 @@ import numpy as np
 import yaml
 
 from ..atomic_file import SaveError, write_atomically
+from ..file_input import InputFileError, read_capped
 from ..lens.models import CameraModel, camera_from_calibration
 from ..lens.fitting import DISTORTION_FITS
 from .rectify import new_camera_matrix
@@ -57,6 +59,9 @@ MAX_FILE_BYTES = 1 << 20
 """Largest calibration file read (a real one is about 1 kB); bigger is refused unread."""
 MAX_YAML_DEPTH = 32
 """Deepest YAML nesting accepted (a calibration file nests 2 deep); PyYAML's composer recurses."""
+MAX_YAML_VALUES = 10000
+"""Most values a YAML document may hold with its aliases expanded (a calibration file holds about
+50): a few hundred bytes of nested aliases would otherwise stand for billions ("billion laughs")."""
 MAX_DISTORTION_VALUES = 64
 _CONDITION_LIMIT = 1e12
 """A 3x3 matrix whose singular values differ by more than this is taken as singular."""
@@ -88,8 +93,20 @@ class CalibrationSaveError(SaveError, CalibrationFileError):
     The target is left as it was and no temporary file stays behind."""
 
 
+_SHORT_REPR = reprlib.Repr()
+_SHORT_REPR.maxlevel, _SHORT_REPR.maxlist, _SHORT_REPR.maxtuple, _SHORT_REPR.maxdict = 3, 6, 6, 4
+_SHORT_REPR.maxstring = _SHORT_REPR.maxother = 120
+
+
 def _show(value, limit: int = 40) -> str:
-    text = repr(value)
+    """repr of ``value`` cut to ``limit`` characters, built in bounded time and memory whatever the
+    value (a list nested 9 deep with 9 items each is never written out whole)."""
+    if isinstance(value, str):
+        text = repr(value[:limit + 1])
+    elif isinstance(value, (list, tuple, dict, set, frozenset)):
+        text = _SHORT_REPR.repr(value)
+    else:
+        text = repr(value)
     return text if len(text) <= limit else text[:limit] + '...'
 
 
@@ -546,13 +563,9 @@ class CameraCalibration:
         path = os.fspath(path)
         fmt = _format_of(path)
         try:
-            with open(path, 'rb') as f:
-                data = f.read(MAX_FILE_BYTES + 1)
-        except OSError as exc:
-            raise CalibrationFileError(f'cannot read {path}: {exc.strerror or exc}') from None
-        if len(data) > MAX_FILE_BYTES:
-            raise CalibrationFileError(f'{path} is larger than {MAX_FILE_BYTES} bytes: allowed: a camera '
-                                       'calibration file (about 1 kB)')
+            data = read_capped(path, MAX_FILE_BYTES, 'a camera calibration file (about 1 kB)')
+        except InputFileError as exc:
+            raise CalibrationFileError(str(exc)) from None
         try:
             text = data.decode('utf-8-sig')
         except UnicodeDecodeError as exc:
@@ -627,6 +640,27 @@ class _YamlLoader(yaml.BaseLoader):
     def __init__(self, stream):
         super().__init__(stream)
         self._depth = 0
+
+    def compose_document(self):
+        node = super().compose_document()
+        sizes = {}
+
+        def expanded(n):  # values under n with aliases expanded; each node counted once
+            if id(n) not in sizes:
+                sizes[id(n)] = MAX_YAML_VALUES + 1  # a cycle (PyYAML refuses them first) counts as too many
+                children = (n.value if isinstance(n, yaml.SequenceNode) else
+                            [x for pair in n.value for x in pair] if isinstance(n, yaml.MappingNode) else [])
+                total = 1
+                for child in children:
+                    total += expanded(child)
+                    if total > MAX_YAML_VALUES:
+                        break
+                sizes[id(n)] = total
+            return sizes[id(n)]
+        if node is not None and expanded(node) > MAX_YAML_VALUES:
+            raise CalibrationFileError(f'invalid YAML: its aliases expand to more than {MAX_YAML_VALUES} values: '
+                                       'allowed: a camera calibration file (about 50 values)')
+        return node
 
     def compose_node(self, parent, index):
         self._depth += 1

@@ -120,10 +120,19 @@ def get_preset(name: str) -> CameraSpec:
 def spec_with_preset(preset: Optional[str], **fields) -> CameraSpec:
     """The CameraSpec of ``preset`` (None or '': no preset) with every field given in ``fields``
     (not None) taking the place of the preset's: what `solve --preset` and the node's ``preset``
-    parameter mean."""
+    parameter mean. A width and height of another aspect ratio than the preset's are refused
+    (SpecError): its FOVs are those of its aspect ratio."""
     if not preset:
         return CameraSpec(**fields)  # CameraSpec names a missing or invalid field
-    spec = get_preset(preset)
+    entry = get_preset_entry(preset)
+    spec = entry.spec
     merged = {k: getattr(spec, k) for k in SPEC_FIELDS}
     merged.update({k: v for k, v in fields.items() if v is not None})
-    return CameraSpec(**merged)
+    result = CameraSpec(**merged)
+    # the preset's FOVs belong to its aspect ratio: another one is another crop of the sensor
+    if result.width * spec.height != result.height * spec.width:
+        raise SpecError('width x height', f'{result.width}x{result.height}',
+                        f'{spec.width}x{spec.height} or another size of that aspect ratio (scaled), or no preset',
+                        f"preset {entry.name}'s fields of view are for {spec.width}x{spec.height}; another aspect "
+                        'ratio is another crop of the sensor, with other FOVs')
+    return result
