@@ -238,7 +238,7 @@ class ActiveCalibration:
         try:
             camera = self.camera if key == self.size else self.camera.scaled(width, height)
             rectifier = Rectifier(camera, interpolation=self.interpolation, P=calibration.P,
-                                  map_threads=map_threads)
+                                  map_threads=map_threads, R=calibration.R)
             with self._lock:
                 rectifiers = dict(self._rectifiers)  # readers without the lock see old or new
                 others = sorted((k for k in rectifiers if k != self.size),
