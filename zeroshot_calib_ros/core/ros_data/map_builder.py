@@ -62,7 +62,8 @@ class MapBuilder:
             self._cond.notify()
 
     def request_size(self, active: ActiveCalibration, width: int, height: int):
-        """Build the maps of ``width`` x ``height`` for ``active`` (once; later calls are no-ops)."""
+        """Build the maps of ``width`` x ``height`` for ``active`` (a call while that size is queued
+        or being built is a no-op; once it is done, a new call builds it again)."""
         key = (id(active), width, height)
         with self._cond:
             if key in self._queued_sizes:
@@ -101,7 +102,9 @@ class MapBuilder:
             with self._cond:
                 if self._pending is job:
                     self._pending = None
-                if job.size is not None and job.error:  # a built size stays queued until released
+                if job.size is not None:  # built or failed: the size may be asked for again
+                    # (its maps can be evicted from the calibration's cache later, and a frame
+                    # of that size then asks again; one that is still cached is not asked for)
                     self._queued_sizes.discard((id(job.active), *job.size))
             self._done(job)
 

@@ -1,0 +1,63 @@
+"""The node's calibration life cycle, in a real process (test/ros_peer.py): set_camera_info
+answers "success" for what is in force, refuses what its maps cannot hold before saving,
+frame sizes evicted from the map cache are rectified again, memory stays bounded over many
+frame sizes.
+"""
+import time
+
+import numpy as np
+import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.qos import ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.srv import SetCameraInfo
+
+from ros_peer import (LATCHED, diagnostics_value, domain_id, image_msg, peer, qos,  # noqa: F401
+                      start_node)
+
+RELIABLE = qos(ReliabilityPolicy.RELIABLE, depth=50)
+SPEC_720 = ['-p', 'width:=1280', '-p', 'height:=720', '-p', 'hfov:=118', '-p', 'vfov:=69']
+ODD_SIZES = [(640, 360), (320, 180), (960, 540), (480, 270), (1600, 900), (256, 144)]
+"""Six frame sizes of the configured aspect ratio beside 1280x720: more than the 4 the map cache holds."""
+
+
+def rss_mib(pid) -> float:
+    with open(f'/proc/{pid}/status') as f:
+        return int(next(line for line in f if line.startswith('VmRSS')).split()[1]) / 1024
+
+
+def stamp_of(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def send_until_rectified(peer, pub, rects, size, stamp, timeout=20.0):
+    """Frames of ``size`` every 0.1 s until one comes back as image_rect; returns the next stamp."""
+    width, height = size
+    frame = np.random.default_rng(width).integers(0, 255, (height, width), np.uint8)
+    deadline = time.monotonic() + timeout
+    first = stamp
+    while time.monotonic() < deadline:
+        pub.publish(image_msg(frame, 'mono8', stamp))
+        stamp += 1
+        peer.spin_for(0.1)
+        if any(stamp_of(m) >= first and (m.width, m.height) == size for m in rects):
+            return stamp
+    raise AssertionError(f'no image_rect of {width}x{height} within {timeout:.0f} s '
+                         f'({stamp - first} frames sent)')
+
+
+def test_every_frame_size_is_rectified_again_after_more_sizes_than_the_cache_holds(peer, start_node):
+    """Two rounds over six odd sizes (the cache holds four): each size's frames come back
+    rectified in both rounds, the evicted ones after their maps are built again."""
+    node = start_node('--ros-args', *SPEC_720, '-p', 'rectify:=true')
+    rects = peer.collect(Image, 'image_rect', RELIABLE)
+    pub = peer.image_publisher(RELIABLE)
+    stamp = 20_000_000_000
+    for round_ in range(2):
+        for size in ODD_SIZES:
+            try:
+                stamp = send_until_rectified(peer, pub, rects, size, stamp)
+            except AssertionError as exc:
+                raise AssertionError(f'round {round_ + 1}: {exc}') from None
+    assert node.alive()
