@@ -61,3 +61,43 @@ def test_every_frame_size_is_rectified_again_after_more_sizes_than_the_cache_hol
             except AssertionError as exc:
                 raise AssertionError(f'round {round_ + 1}: {exc}') from None
     assert node.alive()
+
+
+RSS_GROWTH_BOUND_MIB = 80
+"""What the node may keep after every odd size's maps are released: the freed frame blocks the
+heap keeps for the stream by design (trim threshold 64 MiB, core/ros_data/heap.py) and the
+transport's buffers of the largest frame seen (2560x1920 bgr8: 14 MiB). Before the maps' memory
+was given back it kept +210 MiB (+290 MiB at the peak) with 2.3 MB of maps in force."""
+
+
+def test_memory_is_given_back_after_many_odd_frame_sizes(peer, start_node):
+    """bgr8 frames of five other sizes (same aspect ratio, so maps are built for each), two
+    rounds, three frames each; once every odd size's maps are released (unused for 10 s), the
+    node's RSS is within RSS_GROWTH_BOUND_MIB of what it was before, and /diagnostics says how
+    much it holds (process_rss_mb, measured from outside within 10%)."""
+    node = start_node('--ros-args', '-p', 'width:=640', '-p', 'height:=480', '-p', 'hfov:=100',
+                      '-p', 'vfov:=80', '-p', 'rectify:=true')
+    rects = peer.collect(Image, 'image_rect', RELIABLE)
+    diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
+    pub = peer.image_publisher(RELIABLE)
+    stamp = send_until_rectified(peer, pub, rects, (640, 480), 30_000_000_000)
+    peer.spin_for(1.5)
+    start = rss_mib(node.process.pid)
+    peak = start
+    for _ in range(2):
+        for width, height in [(1280, 960), (1920, 1440), (2560, 1920), (800, 600), (1600, 1200)]:
+            frame = np.zeros((height, width, 3), np.uint8)
+            for _ in range(3):
+                pub.publish(image_msg(frame, 'bgr8', stamp))
+                stamp += 1
+                peer.spin_for(0.3)
+            peak = max(peak, rss_mib(node.process.pid))
+    # the cache holds the configured size and the last three others; the rest were evicted
+    peer.spin_until(lambda: all(f'maps of {s} released' in node.log for s in ('2560x1920', '800x600', '1600x1200')),
+                    timeout=40, what='the odd sizes\' maps released')
+    peer.spin_for(2.5)  # a diagnostics message after the release
+    end = rss_mib(node.process.pid)
+    print(f'node RSS: {start:.0f} MiB before, {peak:.0f} at the peak, {end:.0f} after the release')
+    assert end - start <= RSS_GROWTH_BOUND_MIB, (start, peak, end)
+    assert float(diagnostics_value(diagnostics, 'map_memory_mb')) < 3  # 640x480 float maps: 2.3 MiB
+    assert float(diagnostics_value(diagnostics, 'process_rss_mb')) == pytest.approx(end, rel=0.1)

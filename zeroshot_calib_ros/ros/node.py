@@ -59,7 +59,7 @@ from ..core.ros_data.cdr_image import (CdrError, NotPlainCdr, SerializedImage, p
 from ..core.ros_data.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded,  # noqa: E402
                                           binned_roi_size, binning_or_roi_reason, check_frame,
                                           check_map_budget, default_map_budget_mb, image_array, map_bytes)
-from ..core.ros_data.heap import keep_frames_in_heap  # noqa: E402
+from ..core.ros_data.heap import keep_frames_in_heap, resident_bytes  # noqa: E402
 from ..core.ros_data.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
 from ..core.ros_data.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
                                              RECTIFICATION_PARAMETERS, Settings, number_in_range,
@@ -576,7 +576,8 @@ class ZeroShotCalibNode(Node):
                   'pending_generation': pending.active.generation if pending else '',
                   'maps_build_ms': f'{self._maps_build_ms:.1f}',
                   'map_memory_mb': f'{self._active.map_memory_bytes / 2**20:.1f}',
-                  'frame_buffer_mb': f'{self._active.frame_buffer_bytes / 2**20:.1f}', **self._refine_values_text(),
+                  'frame_buffer_mb': f'{self._active.frame_buffer_bytes / 2**20:.1f}',
+                  'process_rss_mb': f'{resident_bytes() / 2**20:.1f}', **self._refine_values_text(),
                   **self._stats}
         if values['refine_state'] == 'failed':
             status.level = DiagnosticStatus.WARN

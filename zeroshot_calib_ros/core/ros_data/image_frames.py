@@ -18,6 +18,7 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 
 from .calibration_file import CameraCalibration
+from .heap import return_free_memory
 from ..lens.models import CameraModel
 from .rectify import Rectifier, new_camera_matrix
 
@@ -264,6 +265,8 @@ class ActiveCalibration:
                      if k != self.size and now - self._last_used.get(k, 0.0) > idle_seconds]
             if stale:
                 self._rectifiers = {k: v for k, v in self._rectifiers.items() if k not in stale}
+        if stale:
+            return_free_memory()  # freed maps stay resident in the heap otherwise (heap.py)
         return stale
 
     @property

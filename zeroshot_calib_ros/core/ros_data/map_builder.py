@@ -11,6 +11,7 @@ import time
 from dataclasses import dataclass
 from typing import Optional, Tuple
 
+from .heap import return_free_memory
 from .image_frames import ActiveCalibration
 
 REBUILD_MAP_THREADS = 1
@@ -99,6 +100,7 @@ class MapBuilder:
             except Exception as exc:  # reported by the node; the calibration in force stays
                 job.error = exc
             job.seconds = time.monotonic() - start
+            return_free_memory()  # the build's temporaries and any maps it evicted (heap.py)
             with self._cond:
                 if self._pending is job:
                     self._pending = None
