@@ -10,10 +10,10 @@ from zeroshot_calib_ros.core.ros_data.image_frames import ActiveCalibration
 from zeroshot_calib_ros.core.ros_data.map_builder import MapBuilder
 
 
-def small_active():
+def small_active(build_maps=True):
     solution = solve_zero_shot(CameraSpec(640, 360, 118, 69))
     calibration, _ = CameraCalibration.from_solution(solution)
-    return ActiveCalibration(calibration, solution.camera, 'spec', rectify=True)
+    return ActiveCalibration(calibration, solution.camera, 'spec', rectify=True, build_maps=build_maps)
 
 
 class Finished:
@@ -76,5 +76,30 @@ def test_a_size_requested_twice_before_its_build_is_built_once():
         gate.set()
         finished.wait_for(2)
         np.testing.assert_equal(sorted(j.size for j in finished.jobs), [(320, 180), (480, 270)])
+    finally:
+        builder.stop()
+
+
+def test_a_job_ends_finished_whether_built_failed_or_superseded():
+    from zeroshot_calib_ros.core.ros_data.map_builder import MapJob
+    finished = Finished()
+    builder = MapBuilder(finished)
+    gate = threading.Event()
+    try:
+        busy = small_active(build_maps=False)
+        original = busy.prepare
+        busy.prepare = lambda *a, **k: (gate.wait(10), original(*a, **k))[1]
+        first = MapJob(busy)
+        builder.submit(first)  # the worker takes it and waits at the gate
+        while builder._running is not first:
+            threading.Event().wait(0.01)
+        replaced, newest = MapJob(small_active(False)), MapJob(small_active(False))
+        builder.submit(replaced)
+        builder.submit(newest)  # replaces `replaced` before the worker took it
+        assert replaced.finished.wait(1) and replaced.superseded
+        gate.set()
+        assert first.finished.wait(20) and newest.finished.wait(20)
+        assert not first.superseded and first.error is None and newest.error is None
+        assert newest.active.prepared and not replaced.active.prepared
     finally:
         builder.stop()

@@ -101,3 +101,97 @@ def test_memory_is_given_back_after_many_odd_frame_sizes(peer, start_node):
     assert end - start <= RSS_GROWTH_BOUND_MIB, (start, peak, end)
     assert float(diagnostics_value(diagnostics, 'map_memory_mb')) < 3  # 640x480 float maps: 2.3 MiB
     assert float(diagnostics_value(diagnostics, 'process_rss_mb')) == pytest.approx(end, rel=0.1)
+
+
+def camera_info(width, height, f_scale=0.5, d=(0.02, -0.01, 0.003, -0.0005), r=None):
+    info = CameraInfo(width=width, height=height, distortion_model='equidistant')
+    f = f_scale * width
+    info.k = [f, 0.0, width / 2, 0.0, f, height / 2, 0.0, 0.0, 1.0]
+    info.d = list(d)
+    info.r = list(np.eye(3).ravel() if r is None else np.ravel(r))
+    info.p = [0.9 * f, 0.0, width / 2, 0.0, 0.0, 0.9 * f, height / 2, 0.0, 0.0, 0.0, 1.0, 0.0]
+    return info
+
+
+def test_set_camera_info_success_means_in_force(peer, start_node, tmp_path):
+    """rectify on, a 4000x3000 calibration (92 MiB of maps, built in ~1 s): "adopted and saved"
+    comes when it is in force (every CameraInfo after the reply has it, the file holds it);
+    were its maps still building after SET_CAMERA_INFO_WAIT_SECONDS (a busy machine), the reply
+    says so, and the file appears only with the calibration in force."""
+    path = tmp_path / 'cam.yaml'
+    start_node('--ros-args', *SPEC_720, '-p', 'rectify:=true', '-p', f'camera_info_url:=file://{path}')
+    infos = peer.collect(CameraInfo, 'camera_info', RELIABLE)
+    peer.spin_until(lambda: infos, what='camera_info')
+    response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=camera_info(4000, 3000)))
+    assert response.success, response.status_message
+    if 'not in force yet' in response.status_message:
+        assert 'are being built' in response.status_message and not path.exists()
+        peer.spin_until(lambda: infos[-1].width == 4000, timeout=60, what='the calibration in force')
+        peer.spin_until(path.exists, timeout=5, what='the file saved once in force')
+    else:
+        assert response.status_message == f'calibration adopted and saved to {path}'
+        assert yaml.safe_load(path.read_text())['image_width'] == 4000
+        peer.spin_for(0.05)  # what was on its way before the reply
+        infos.clear()
+        peer.spin_for(0.6)
+        assert infos and all(m.width == 4000 for m in infos), [m.width for m in infos]
+
+
+def vm_size_bytes(pid):
+    with open(f'/proc/{pid}/status') as f:
+        return int(next(line for line in f if line.startswith('VmSize')).split()[1]) * 1024
+
+
+def test_under_a_memory_limit_a_calibration_whose_maps_cannot_be_built_is_refused_unsaved(
+        peer, start_node, tmp_path):
+    """The node under ulimit -v (prlimit --as): its default map budget is an eighth of the
+    address space left (the start-up block says so), so a 20000x15000 calibration (2.2 GiB of
+    maps; 3 GiB, an eighth of this machine, would have allowed it) is refused before it is saved,
+    naming the budget; the calibration in force stays, and a restart publishes it."""
+    probe = start_node('--ros-args', *SPEC_720, '-p', 'rectify:=true', name='probe')
+    peer.spin_until(lambda: 'maps at most max_map_memory_mb' in probe.log, what='the start-up block')
+    limit = vm_size_bytes(probe.process.pid) + (3 << 30)  # 3 GiB of address space to spare
+    probe.stop()
+    path = tmp_path / 'cam.yaml'
+    args = ['--ros-args', *SPEC_720, '-p', 'rectify:=true', '-p', f'camera_info_url:=file://{path}']
+    node = start_node(*args, prefix=['prlimit', f'--as={limit}', '--'])
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos and 'maps at most max_map_memory_mb' in node.log, what='camera_info')
+    assert 'an eighth of ulimit -v (RLIMIT_AS)' in node.log, node.log
+    response = peer.call(SetCameraInfo, 'set_camera_info',
+                         SetCameraInfo.Request(camera_info=camera_info(20000, 15000)), timeout=60)
+    assert not response.success, response.status_message
+    assert 'max_map_memory_mb' in response.status_message and '20000x15000' in response.status_message
+    assert not path.exists()
+    peer.spin_for(1.0)
+    assert infos[-1].width == 1280 and node.alive()
+    # a calibration that fits is adopted and saved under the same limit
+    response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=camera_info(1280, 720)))
+    assert response.success and 'adopted and saved' in response.status_message, response.status_message
+    assert yaml.safe_load(path.read_text())['image_width'] == 1280
+
+
+@pytest.mark.parametrize('field, value, words', [
+    ('k', 0, ['K (camera_matrix) fx', 'allowed']),
+    ('d', 1, ['D (distortion_coefficients) [1]', 'allowed']),
+    ('r', None, ['R (rectification_matrix)', 'a rotation']),
+    ('k', 2, ['K (camera_matrix) cx', 'allowed']),
+])
+def test_set_camera_info_refuses_an_absurd_calibration_naming_the_field(peer, start_node, tmp_path, field, value,
+                                                                         words):
+    path = tmp_path / 'cam.yaml'
+    start_node('--ros-args', *SPEC_720, '-p', f'camera_info_url:=file://{path}')
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='camera_info')
+    info = camera_info(1280, 720)
+    if field == 'r':
+        info.r = list((5 * np.eye(3)).ravel())
+    else:
+        values = list(getattr(info, field))
+        values[value] = 1e300 if field == 'k' and value == 0 else 1e12 if field == 'k' else 1e300
+        setattr(info, field, values)
+    response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=info))
+    assert not response.success and all(w in response.status_message for w in words), response.status_message
+    assert not path.exists()
+    peer.spin_for(0.3)
+    assert infos[-1].k[0] != info.k[0]
