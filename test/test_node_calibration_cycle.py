@@ -195,3 +195,25 @@ def test_set_camera_info_refuses_an_absurd_calibration_naming_the_field(peer, st
     assert not path.exists()
     peer.spin_for(0.3)
     assert infos[-1].k[0] != info.k[0]
+
+
+def test_a_calibration_whose_maps_take_long_is_answered_as_not_in_force_yet_and_saved_when_it_is(
+        peer, start_node, tmp_path):
+    """16000x12000 (1.4 GiB of maps, within the default budget of this machine; ~10 s to build):
+    the reply says it is accepted and its maps are being built, no file yet; the calibration in
+    force stays until they are built; then it is in force and saved."""
+    path = tmp_path / 'cam.yaml'
+    node = start_node('--ros-args', *SPEC_720, '-p', 'rectify:=true', '-p', f'camera_info_url:=file://{path}')
+    infos = peer.collect(CameraInfo, 'camera_info', RELIABLE)
+    peer.spin_until(lambda: infos, what='camera_info')
+    response = peer.call(SetCameraInfo, 'set_camera_info',
+                         SetCameraInfo.Request(camera_info=camera_info(16000, 12000)), timeout=30)
+    assert response.success, response.status_message
+    assert 'not in force yet' in response.status_message and '16000x12000 are being built' in response.status_message
+    assert not path.exists()
+    peer.spin_for(0.5)
+    assert infos[-1].width == 1280
+    peer.spin_until(lambda: infos[-1].width == 16000, timeout=120, what='the calibration in force')
+    peer.spin_until(path.exists, timeout=5, what='the file, once in force')
+    assert yaml.safe_load(path.read_text())['image_width'] == 16000
+    assert f'calibration from set_camera_info in force and saved to {path}' in node.log

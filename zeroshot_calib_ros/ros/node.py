@@ -74,11 +74,11 @@ IMAGE_IDLE_SECONDS = 1.0
 """Timer-driven CameraInfo resumes when no image arrived for this long."""
 WARN_THROTTLE_SECONDS = 5.0
 OTHER_SIZE_IDLE_SECONDS = 10.0
+"""Maps of a frame size other than the configured one are released after this long unused."""
 SET_CAMERA_INFO_WAIT_SECONDS = 3.0
 """How long set_camera_info waits for the new calibration's maps (built on every core: frames
 wait for the reply anyway) so that its "success" means in force; a larger calibration is
 answered as accepted, with its maps being built, and saved when it is in force."""
-"""Maps of a frame size other than the configured one are released after this long unused."""
 FRAME_PATH_ENV = 'ZEROSHOT_CALIB_FRAME_PATH'
 """'serialized' (the default) or 'message': how frames are taken and published (see the module)."""
 _INFO_TEMPLATES_CACHED = 16
