@@ -217,3 +217,31 @@ def test_a_calibration_whose_maps_take_long_is_answered_as_not_in_force_yet_and_
     peer.spin_until(path.exists, timeout=5, what='the file, once in force')
     assert yaml.safe_load(path.read_text())['image_width'] == 16000
     assert f'calibration from set_camera_info in force and saved to {path}' in node.log
+
+
+def test_image_rect_honours_the_rotation_of_a_set_camera_info_calibration(peer, start_node):
+    """set_camera_info with a 5-degree stereo R (equidistant): image_rect is what OpenCV's maps
+    for K, D, R, P make of the frame (image_proc's), within 2 grey levels on a smooth texture."""
+    import cv2
+    from test_rectification_rotation import calibration, opencv_maps, smooth_image
+    from zeroshot_calib_ros.ros.messages import fill_camera_info
+    start_node('--ros-args', *SPEC_720, '-p', 'rectify:=true')
+    rects = peer.collect(Image, 'image_rect', RELIABLE)
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='camera_info')
+    cal = calibration('equidistant')
+    info = CameraInfo()
+    fill_camera_info(info, cal)
+    response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=info))
+    assert response.success, response.status_message
+    pub = peer.image_publisher(RELIABLE)
+    image = smooth_image()
+    stamp = 40_000_000_000
+    pub.publish(image_msg(image, 'mono8', stamp))
+    peer.spin_until(lambda: any(stamp_of(m) == stamp for m in rects), what='image_rect')
+    msg = next(m for m in rects if stamp_of(m) == stamp)
+    ours = np.frombuffer(bytes(msg.data), np.uint8).reshape(720, 1280).astype(float)
+    mx, my = opencv_maps(cal)
+    reference = cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).astype(float)
+    inside = (mx > 1) & (mx < 1278) & (my > 1) & (my < 718)
+    assert np.abs(ours - reference)[inside].max() <= 2
