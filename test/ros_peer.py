@@ -44,7 +44,7 @@ LATCHED = qos(durability=DurabilityPolicy.TRANSIENT_LOCAL)
 class NodeProcess:
     """The node under test in its own process; stdout/stderr collected to a file."""
 
-    def __init__(self, args, domain_id, tmp_path, name='node'):
+    def __init__(self, args, domain_id, tmp_path, name='node', prefix=()):
         if not NODE_EXECUTABLE.exists():
             pytest.fail(f'{NODE_EXECUTABLE} is missing: build first (make build)')
         self.log_path = tmp_path / f'{name}.log'
@@ -52,7 +52,8 @@ class NodeProcess:
         env = ros_environment(domain_id)
         # camera_info_manager's default URL is under $ROS_HOME: never the user's ~/.ros
         env['ROS_HOME'] = str(tmp_path / 'ros_home')
-        self.process = subprocess.Popen([str(NODE_EXECUTABLE), *args], env=env,
+        # prefix: a command the node runs under (e.g. prlimit --as=... --)
+        self.process = subprocess.Popen([*prefix, str(NODE_EXECUTABLE), *args], env=env,
                                         stdout=self._log, stderr=subprocess.STDOUT, cwd=str(REPO))
 
     @property
@@ -141,8 +142,8 @@ def peer(domain_id):
 def start_node(domain_id, tmp_path):
     started = []
 
-    def start(*args, name='node'):
-        process = NodeProcess(list(args), domain_id, tmp_path, name=f'{name}{len(started)}')
+    def start(*args, name='node', prefix=()):
+        process = NodeProcess(list(args), domain_id, tmp_path, name=f'{name}{len(started)}', prefix=prefix)
         started.append(process)
         return process
 

@@ -185,14 +185,29 @@ finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
 
 @st.composite
 def valid_calibrations(draw):
+    """Any calibration a camera can have (calibration_file's plausibility bounds: focal lengths
+    from 0.01 x the smaller side to 1e5 x the larger, principal point within one image size of
+    the image, |skew| <= 0.1 fx, each distortion term <= 1e6 at the image corner), drawn well
+    inside them: f from 0.5 x the larger side, the principal point at most half an image outside,
+    |D| <= 1 (rho <= 4.3 focal lengths: every term below 1e5)."""
     width, height = draw(st.integers(1, 5000)), draw(st.integers(1, 5000))
-    fx, fy = draw(st.floats(0.5, 1e5)), draw(st.floats(0.5, 1e5))
-    K = [[fx, draw(finite), draw(finite)], [0, fy, draw(finite)], [0, 0, 1]]
+    side = max(width, height)
+
+    def focal():
+        return draw(st.floats(0.5, 1e4)) * side
+
+    def pinhole():
+        fx, fy = focal(), focal()
+        skew = draw(st.floats(-0.1, 0.1)) * fx
+        return fx, fy, skew, draw(st.floats(-0.5, 1.5)) * width, draw(st.floats(-0.5, 1.5)) * height
+
+    fx, fy, skew, cx, cy = pinhole()
+    K = [[fx, skew, cx], [0, fy, cy], [0, 0, 1]]
     model = draw(st.sampled_from(['plumb_bob', 'equidistant', 'rational_polynomial']))
-    D = draw(st.lists(st.floats(-10, 10), min_size=5 if model == 'plumb_bob' else 4 if model == 'equidistant' else 8,
+    D = draw(st.lists(st.floats(-1, 1), min_size=5 if model == 'plumb_bob' else 4 if model == 'equidistant' else 8,
                       max_size=5 if model == 'plumb_bob' else 4 if model == 'equidistant' else 8))
-    P = [[draw(st.floats(0.5, 1e5)), 0, draw(finite), draw(finite)], [0, draw(st.floats(0.5, 1e5)), draw(finite), 0],
-         [0, 0, 1, 0]]
+    px, py, pskew, pcx, pcy = pinhole()
+    P = [[px, pskew, pcx, draw(finite)], [0, py, pcy, 0], [0, 0, 1, 0]]
     x0, y0 = draw(st.integers(0, width - 1)), draw(st.integers(0, height - 1))
     roi = draw(st.one_of(st.just(RegionOfInterest()), st.builds(
         RegionOfInterest, st.just(x0), st.just(y0), st.integers(1, height - y0), st.integers(1, width - x0),

@@ -495,7 +495,8 @@ RECTIFY_SPEC_OPTIONS = SOLVE_SPEC_FIELDS + ('preset', 'model')
 
 
 def _rectify_camera(args, width, height):
-    """(camera model, P or None) for an image of width x height."""
+    """(camera model, P, R) for an image of width x height (R: the calibration file's
+    rectification rotation, honoured as image_proc does; the identity for a spec)."""
     balance = 0.0 if args.balance is None else args.balance
     fov_scale = 1.0 if args.fov_scale is None else args.fov_scale
     if args.calibration is not None:
@@ -513,12 +514,12 @@ def _rectify_camera(args, width, height):
             calibration = calibration.scaled(width, height)
         camera = calibration.camera()
         if args.balance is not None or args.fov_scale is not None:
-            return camera, new_camera_matrix(camera, balance, fov_scale)
+            return camera, new_camera_matrix(camera, balance, fov_scale), calibration.R
         P = np.asarray(calibration.P, dtype=float)[:3, :3]
         if not abs(np.linalg.det(P)) > 0:
             raise CliError(f'--calibration {args.calibration}: projection_matrix {P.tolist()} cannot be '
                            'inverted: allowed: an invertible P (or choose one with --balance / --fov-scale)')
-        return camera, P
+        return camera, P, calibration.R
     fields = {k: getattr(args, k) for k in SOLVE_SPEC_FIELDS}
     if not args.preset:
         fields['width'] = width if args.width is None else args.width
@@ -530,15 +531,15 @@ def _rectify_camera(args, width, height):
     solution = solve_zero_shot(spec, args.model or 'auto')
     camera = solution.camera if (spec.width, spec.height) == (width, height) \
         else solution.camera.scaled(width, height)
-    return camera, new_camera_matrix(camera, balance, fov_scale)
+    return camera, new_camera_matrix(camera, balance, fov_scale), None
 
 
 def _cmd_rectify(args):
     _check_output_image(args.output)
     image, _ = _read_image(args.input)
     height, width = image.shape[:2]
-    camera, P = _rectify_camera(args, width, height)
-    rectifier = Rectifier(camera, interpolation=args.interpolation, P=P)
+    camera, P, R = _rectify_camera(args, width, height)
+    rectifier = Rectifier(camera, interpolation=args.interpolation, P=P, R=R)
     try:
         written = cv2.imwrite(args.output, rectifier.rectify(image))
     except cv2.error as exc:

@@ -58,8 +58,8 @@ from ..core.ros_data.cdr_image import (CdrError, NotPlainCdr, SerializedImage, p
                                        patch_stamp, pixel_bytes)
 from ..core.ros_data.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded,  # noqa: E402
                                           binned_roi_size, binning_or_roi_reason, check_frame,
-                                          check_map_budget, default_map_budget_mb, image_array, map_bytes)
-from ..core.ros_data.heap import keep_frames_in_heap  # noqa: E402
+                                          check_map_budget, default_map_budget, image_array, map_bytes)
+from ..core.ros_data.heap import keep_frames_in_heap, resident_bytes  # noqa: E402
 from ..core.ros_data.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
 from ..core.ros_data.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
                                              RECTIFICATION_PARAMETERS, Settings, number_in_range,
@@ -75,6 +75,10 @@ IMAGE_IDLE_SECONDS = 1.0
 WARN_THROTTLE_SECONDS = 5.0
 OTHER_SIZE_IDLE_SECONDS = 10.0
 """Maps of a frame size other than the configured one are released after this long unused."""
+SET_CAMERA_INFO_WAIT_SECONDS = 3.0
+"""How long set_camera_info waits for the new calibration's maps (built on every core: frames
+wait for the reply anyway) so that its "success" means in force; a larger calibration is
+answered as accepted, with its maps being built, and saved when it is in force."""
 FRAME_PATH_ENV = 'ZEROSHOT_CALIB_FRAME_PATH'
 """'serialized' (the default) or 'message': how frames are taken and published (see the module)."""
 _INFO_TEMPLATES_CACHED = 16
@@ -135,7 +139,11 @@ class ZeroShotCalibNode(Node):
         self._reverting = False
 
         self._map_budget = number_in_range('max_map_memory_mb', self.get_parameter('max_map_memory_mb').value,
-                                   0, 2**40, integer=True) or default_map_budget_mb()
+                                   0, 2**40, integer=True)
+        self._map_budget_why = 'as set'
+        if not self._map_budget:
+            self._map_budget, self._map_budget_why = default_map_budget()
+        self._save_when_in_force = None  # (calibration, generation) of set_camera_info, saved once in force
         settings = Settings.from_values(self._values())
         self._settings = settings
         self._refine, self._refine_interval = self._refine_values(self._values())
@@ -274,7 +282,7 @@ class ZeroShotCalibNode(Node):
             '(sensor_msgs/srv/SetCameraInfo, for cameracalibrator)',
             f'  publishes  {self._diagnostics_pub.topic_name} (diagnostic_msgs/DiagnosticArray, 1 Hz)',
             f'  rectify    {"on" if self._active.rectify_enabled else "off"}'
-            f' (maps at most max_map_memory_mb = {self._map_budget})',
+            f' (maps at most max_map_memory_mb = {self._map_budget}: {self._map_budget_why})',
             f'  calibration file: {self._file_state}',
             f'  frame path {self._frame_path_text()}',
             f'  memory     {self._heap_text}',
@@ -576,7 +584,8 @@ class ZeroShotCalibNode(Node):
                   'pending_generation': pending.active.generation if pending else '',
                   'maps_build_ms': f'{self._maps_build_ms:.1f}',
                   'map_memory_mb': f'{self._active.map_memory_bytes / 2**20:.1f}',
-                  'frame_buffer_mb': f'{self._active.frame_buffer_bytes / 2**20:.1f}', **self._refine_values_text(),
+                  'frame_buffer_mb': f'{self._active.frame_buffer_bytes / 2**20:.1f}',
+                  'process_rss_mb': f'{resident_bytes() / 2**20:.1f}', **self._refine_values_text(),
                   **self._stats}
         if values['refine_state'] == 'failed':
             status.level = DiagnosticStatus.WARN
@@ -638,7 +647,8 @@ class ZeroShotCalibNode(Node):
         return SetParametersResult(successful=True)
 
     # --- calibrations swapped in when their maps are ready --------------------------------
-    def _adopt(self, active: ActiveCalibration, log: str, values: Optional[dict] = None):
+    def _adopt(self, active: ActiveCalibration, log: str, values: Optional[dict] = None,
+               every_core: bool = False) -> MapJob:
         """``active`` in force once its maps are built (at once without rectification). Later
         changes build on it (``_newest``) even before it is in force."""
         self._generation = max(self._generation, active.generation)
@@ -647,11 +657,13 @@ class ZeroShotCalibNode(Node):
         job = MapJob(active, log, values=values if values is not None else self._values())
         if not active.rectify_enabled:  # nothing to build: in force at once
             self._swap_in(job)
-            return
+            job.finished.set()
+            return job
         streaming = self._last_image_time is not None and \
             time.monotonic() - self._last_image_time < IMAGE_IDLE_SECONDS
-        job.map_threads = REBUILD_MAP_THREADS if streaming else None
+        job.map_threads = REBUILD_MAP_THREADS if streaming and not every_core else None
         self._builder.submit(job)
+        return job
 
     def _on_builder_done(self, job: MapJob):
         """Builder thread: hand the job to the executor thread."""
@@ -675,6 +687,8 @@ class ZeroShotCalibNode(Node):
                     self.get_logger().info(f'rectification maps of {job.size[0]}x{job.size[1]} built in '
                                            f'{job.seconds * 1e3:.0f} ms')
                 continue
+            if job.superseded:
+                continue
             if job.error is not None:
                 self._calibration_failed(job)
                 continue
@@ -690,6 +704,7 @@ class ZeroShotCalibNode(Node):
         stays, and so that get_parameters, CameraInfo and the log agree, the parameters go back
         to the values in force."""
         self._stats['calibration_build_failed'] += 1
+        self._drop_pending_save(job.active.generation, f'building its maps failed: {job.error!r}')
         if job.active is not self._newest:
             self.get_logger().warning(f'calibration (generation {job.active.generation}) not adopted, '
                                       f'building its maps failed: {job.error!r}; a newer change is pending')
@@ -720,6 +735,28 @@ class ZeroShotCalibNode(Node):
         if job.log:
             self.get_logger().info(job.log)
         self._on_info_timer()  # late joiners see the change at once (unless a camera publishes)
+        pending = self._save_when_in_force
+        if pending is not None and job.active.generation >= pending[1]:
+            if job.active.source == 'set_camera_info':  # it, or a change of its P / maps
+                self._save_when_in_force = None
+                self.get_logger().info(f'calibration from set_camera_info in force{self._save_camera_info(pending[0])[1]}')
+            else:
+                self._drop_pending_save(job.active.generation, f'{job.active.source} is in force instead')
+
+    def _drop_pending_save(self, generation: int, why: str):
+        pending = self._save_when_in_force
+        if pending is not None and generation >= pending[1]:
+            self._save_when_in_force = None
+            self.get_logger().warning(f'calibration from set_camera_info (generation {pending[1]}) not adopted '
+                                      f'and not saved: {why}')
+
+    def _save_camera_info(self, calibration: CameraCalibration) -> tuple:
+        """(saved, text for the reply / log) of saving a set_camera_info calibration in force."""
+        try:
+            calibration.save(self._url_path)
+            return True, f' and saved to {self._url_path}'
+        except (OSError, CalibrationFileError) as exc:
+            return False, f' but NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'
 
     def destroy_node(self):
         builder = getattr(self, '_builder', None)
@@ -871,9 +908,13 @@ class ZeroShotCalibNode(Node):
                 'refine_zero_shot_uncertainty_px': values['zero_shot_uncertainty_px']}
 
     def _on_set_camera_info(self, request, response):
-        """As camera drivers offer it to cameracalibrator: validated whole (including the maps'
-        memory with rectify on), saved to camera_info_url, then adopted. "success" means adopted
-        and saved, as camera_info_manager answers."""
+        """As camera drivers offer it to cameracalibrator: validated whole (plausibility, and the
+        maps' memory with rectify on), adopted, and saved to camera_info_url once in force.
+        "success" with "adopted and saved" means in force and saved, as camera_info_manager
+        answers: the maps are built before the reply (up to SET_CAMERA_INFO_WAIT_SECONDS, on every
+        core); a calibration whose maps take longer is answered as accepted with its maps being
+        built, goes into force and is saved when they are (the log says so). Nothing is saved for
+        a calibration that does not go into force."""
         try:
             calibration = calibration_from_camera_info(request.camera_info, self._settings.camera_name)
             active = ActiveCalibration(calibration, calibration.camera(), 'set_camera_info',
@@ -888,15 +929,26 @@ class ZeroShotCalibNode(Node):
             response.success, response.status_message = False, f'rejected, calibration unchanged: {exc!r}'
             self.get_logger().error(f'set_camera_info {response.status_message}')
             return response
-        try:
-            calibration.save(self._url_path)
-            saved = f' and saved to {self._url_path}'
-            response.success = True
-        except (OSError, CalibrationFileError) as exc:
-            saved = f' but NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'
+        self._save_when_in_force = None  # a newer request replaces an older one still building
+        start = time.monotonic()
+        job = self._adopt(active, 'calibration from set_camera_info adopted', every_core=True)
+        job.finished.wait(SET_CAMERA_INFO_WAIT_SECONDS)
+        if job.finished.is_set() and job.error is None and not job.superseded:
+            self._swap_in(job)  # in force now (a no-op when it already is)
+            response.success, saved = self._save_camera_info(calibration)
+            response.status_message = f'calibration adopted{saved}'
+        elif job.finished.is_set():
+            why = f'building its rectification maps failed: {job.error!r}' if job.error is not None \
+                else 'a newer calibration replaced it'
             response.success = False
-        self._adopt(active, f'calibration from set_camera_info adopted{saved}')
-        response.status_message = f'calibration adopted{saved}'
+            response.status_message = f'not adopted, calibration unchanged: {why}; nothing saved'
+        else:
+            self._save_when_in_force = (calibration, active.generation)
+            response.success = True
+            response.status_message = (
+                f'calibration accepted, not in force yet: its rectification maps of {active.size[0]}x'
+                f'{active.size[1]} are being built ({time.monotonic() - start:.1f} s so far); it goes '
+                f'into force and is saved to {self._url_path} when they are (the log says so)')
         self.get_logger().info(f'set_camera_info: {response.status_message}')
         return response
 

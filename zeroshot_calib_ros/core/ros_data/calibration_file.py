@@ -66,6 +66,34 @@ MAX_DISTORTION_VALUES = 64
 _CONDITION_LIMIT = 1e12
 """A 3x3 matrix whose singular values differ by more than this is taken as singular."""
 
+FOCAL_MIN_PER_SIDE = 0.01
+"""Smallest focal length (K's and P's fx, fy), times the image's smaller side: a field of view of
+~100 radians, far past any lens (a 360-degree equidistant lens has f = side / (2 pi) = 0.16 x side;
+what the zero-shot solver gives for any spec it accepts is above 0.04 x the smaller side)."""
+FOCAL_MAX_PER_SIDE = 1e5
+"""Largest focal length, times the image's larger side: a field of view of 0.0006 degrees (a 2 m
+telescope on a 1/2.3" sensor is 320 x side)."""
+PRINCIPAL_POINT_MARGIN = 1.0
+"""cx, cy of K and P may lie this many image widths / heights outside the image, no further
+(a shifted lens or a rectified stereo camera moves it by a fraction of the image)."""
+MAX_SKEW_PER_FOCAL = 0.1
+"""|skew| (K[0, 1], P[0, 1]) at most this times fx: 5.7 degrees between the pixel axes (real
+sensors: 0)."""
+MAX_DISTORTION_TERM = 1e6
+"""Each distortion coefficient's term, at the image corner farthest from the principal point
+(normalised radius rho = its distance / f), may scale the radius by at most this factor:
+|D[i]| rho^n_i <= 1e6, with n_i the power of the term (equidistant k1..k4: 2, 4, 6, 8 in theta;
+plumb_bob / rational_polynomial k1, k2, p1, p2, k3, k4, k5, k6: 2, 4, 1, 1, 6, 2, 4, 6). Real lenses
+keep each term below 10; the zero-shot fits of extreme specs reach 1e5 (a KB4 fit of a 180-degree
+lens: alternating coefficients of 1e4 that cancel), a 0.05-degree lens's KB4 k4 = 7.5e11 means
+7.5e11 x (5e-4)^8 = 3e-15 there. So the bound is on what a coefficient does to the image, not on
+its value."""
+_TERM_POWERS = {'equidistant': (2, 4, 6, 8), 'fisheye': (2, 4, 6, 8)}
+_PLUMB_BOB_POWERS = (2, 4, 1, 1, 6, 2, 4, 6)
+ROTATION_TOLERANCE = 1e-3
+"""R must be a rotation: |R R^T - I| at most this per element, det(R) > 0 (files round R to 6-9
+digits, cameracalibrator's to 6: errors of 1e-6)."""
+
 _CAMERA_NAME = re.compile(r'[A-Za-z0-9_]+')  # camera_info_manager setCameraName (C-locale isalnum)
 _INTEGER_TEXT = re.compile(r'[0-9]{1,12}')
 _NUMBER_TEXT = re.compile(r'[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?')
@@ -235,6 +263,46 @@ def _well_conditioned(matrix: np.ndarray) -> bool:
     return bool(s[0] > 0 and s[-1] > s[0] / _CONDITION_LIMIT)
 
 
+def _check_plausible(width: int, height: int, K: np.ndarray, model: str, D: np.ndarray, R: np.ndarray,
+                     P: np.ndarray):
+    """Raise CalibrationFileError, naming the field and its allowed range, for a calibration no
+    camera has (the bounds above): CameraInfo consumers would publish black or garbage images."""
+    low, high = FOCAL_MIN_PER_SIDE * min(width, height), FOCAL_MAX_PER_SIDE * max(width, height)
+    for label, M in (('K (camera_matrix)', K), ('P (projection_matrix)', P)):
+        for name, value in (('fx', M[0, 0]), ('fy', M[1, 1])):
+            if not low <= value <= high:
+                raise CalibrationFileError(
+                    f'{label} {name} = {value:.6g} is invalid: allowed: {low:.6g} to {high:.6g} px '
+                    f'({FOCAL_MIN_PER_SIDE:g} x the smaller image side to {FOCAL_MAX_PER_SIDE:g} x the '
+                    f'larger, of {width} x {height})')
+        for name, value, side in (('cx', M[0, 2], width), ('cy', M[1, 2], height)):
+            lo, hi = -PRINCIPAL_POINT_MARGIN * side, (1 + PRINCIPAL_POINT_MARGIN) * side
+            if not lo <= value <= hi:
+                raise CalibrationFileError(
+                    f'{label} {name} = {value:.6g} is invalid: allowed: {lo:g} to {hi:g} px (within '
+                    f'{PRINCIPAL_POINT_MARGIN:g} image size of the {width} x {height} image)')
+        if abs(M[0, 1]) > MAX_SKEW_PER_FOCAL * M[0, 0]:
+            raise CalibrationFileError(
+                f'{label} skew = {M[0, 1]:.6g} is invalid: allowed: at most {MAX_SKEW_PER_FOCAL:g} x fx '
+                f'= {MAX_SKEW_PER_FOCAL * M[0, 0]:.6g} in magnitude')
+    corners = np.array([[0.0, 0.0], [width, 0.0], [0.0, height], [width, height]])
+    rho = float(np.hypot((corners[:, 0] - K[0, 2]) / K[0, 0], (corners[:, 1] - K[1, 2]) / K[1, 1]).max())
+    powers = _TERM_POWERS.get(model, _PLUMB_BOB_POWERS)
+    for i, (value, n) in enumerate(zip(D, powers)):
+        limit = MAX_DISTORTION_TERM / max(rho ** n, 1e-300)
+        if abs(value) > limit:
+            raise CalibrationFileError(
+                f'D (distortion_coefficients) [{i}] = {value:.6g} is invalid: allowed: -{limit:.3g} to {limit:.3g} '
+                f'(its term may scale the radius of the image corner, rho = {rho:.3g} focal lengths, by at most '
+                f'{MAX_DISTORTION_TERM:g})')
+    error = float(np.abs(R @ R.T - np.eye(3)).max())
+    if error > ROTATION_TOLERANCE or not np.linalg.det(R) > 0:
+        raise CalibrationFileError(
+            f'R (rectification_matrix) = {np.round(R, 6).tolist()} is invalid: allowed: a rotation '
+            f'(R R^T = I within {ROTATION_TOLERANCE:g} per element, det(R) = +1); here R R^T is off by '
+            f'{error:.3g}, det(R) = {np.linalg.det(R):.6g}')
+
+
 @dataclass(eq=False)
 class CameraCalibration:
     """Intrinsics, distortion, rectification, projection, binning and ROI of one camera, as in
@@ -305,6 +373,7 @@ class CameraCalibration:
             raise CalibrationFileError(
                 f'D (distortion_coefficients) has {self.D.size} values: allowed for {model}: '
                 + ' or '.join(map(str, counts)))
+        _check_plausible(self.width, self.height, K, model, self.D, self.R, P)
         _integer('binning_x', self.binning_x, 0, self.width, ' (0 and 1: no binning)')
         _integer('binning_y', self.binning_y, 0, self.height, ' (0 and 1: no binning)')
         roi = self.roi

@@ -18,6 +18,7 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 
 from .calibration_file import CameraCalibration
+from .heap import return_free_memory
 from ..lens.models import CameraModel
 from .rectify import Rectifier, new_camera_matrix
 
@@ -51,14 +52,107 @@ MAP_BYTES_PER_PIXEL = 8
 _MAX_SIZES_CACHED = 4
 
 
-def default_map_budget_mb() -> int:
-    """The default max_map_memory_mb: an eighth of the machine's memory (3 GiB on 24 GiB: the maps
-    of 500 megapixels), so that no frame size or parameter can make the node take the machine."""
+_NO_LIMIT = 1 << 60  # cgroup v1 writes 9223372036854771712 for "no limit"
+
+
+def _read_number(path: str) -> Optional[int]:
     try:
-        total = os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES')
+        with open(path) as f:
+            text = f.read().strip()
+    except OSError:
+        return None
+    return int(text) if text.isdigit() else None  # 'max' (cgroup v2): no limit
+
+
+def _proc_status_bytes(status_text: str, key: str) -> Optional[int]:
+    for line in status_text.splitlines():
+        if line.startswith(key + ':'):
+            parts = line.split()
+            return int(parts[1]) * 1024 if len(parts) > 1 and parts[1].isdigit() else None
+    return None
+
+
+def memory_limits(root: str = '/', getrlimit=None) -> list:
+    """The memory the process may still use, under each limit it has: [(bytes, what)], the
+    machine's physical memory first, then a cgroup's (v2 memory.max, v1
+    memory.limit_in_bytes: its own and its ancestors', less what the cgroup uses now) and the
+    rlimits (RLIMIT_AS less the address space mapped now, RLIMIT_DATA less the data segment).
+    ``root`` and ``getrlimit`` stand in for '/' and resource.getrlimit in tests."""
+    if getrlimit is None:
+        import resource
+        getrlimit = resource.getrlimit
+    path = lambda *parts: os.path.join(root, *[p.lstrip('/') for p in parts])  # noqa: E731
+    limits = []
+    try:
+        total = os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES') if root == '/' else None
     except (ValueError, OSError, AttributeError):  # not on Linux
-        total = 8 * 2**30
-    return max(64, int(total // 8 // 2**20))
+        total = None
+    meminfo = _read_text(path('proc/meminfo'))
+    if meminfo and root != '/':
+        total = _proc_status_bytes(meminfo, 'MemTotal')
+    limits.append((total or 8 * 2**30, 'physical memory' if total else 'memory (unknown: 8 GiB assumed)'))
+    for line in (_read_text(path('proc/self/cgroup')) or '').splitlines():
+        parts = line.split(':', 2)
+        if len(parts) != 3:
+            continue
+        if parts[0] == '0' and parts[1] == '':  # cgroup v2
+            base, limit_file, usage_file, label = 'sys/fs/cgroup', 'memory.max', 'memory.current', 'cgroup memory.max'
+        elif 'memory' in parts[1].split(','):  # cgroup v1
+            base, limit_file, usage_file = 'sys/fs/cgroup/memory', 'memory.limit_in_bytes', 'memory.usage_in_bytes'
+            label = 'cgroup memory.limit_in_bytes'
+        else:
+            continue
+        group = parts[2].strip('/')
+        # the process's own cgroup and its ancestors (a container sees its own as the root)
+        candidates = [group]
+        while group:
+            group = os.path.dirname(group)
+            candidates.append(group)
+        for group in candidates:
+            limit = _read_number(path(base, group, limit_file))
+            if limit is None or limit >= _NO_LIMIT:
+                continue
+            used = _read_number(path(base, group, usage_file)) or 0
+            limits.append((max(0, limit - used), f'{label} {limit / 2**20:.0f} MiB ({used / 2**20:.0f} MiB in use)'))
+    status = _read_text(path('proc/self/status')) or ''
+    import resource
+    for name, key, label in (('RLIMIT_AS', 'VmSize', 'ulimit -v (RLIMIT_AS)'),
+                             ('RLIMIT_DATA', 'VmData', 'ulimit -d (RLIMIT_DATA)')):
+        resource_id = getattr(resource, name, None)
+        if resource_id is None:
+            continue
+        try:
+            soft, _ = getrlimit(resource_id)
+        except (OSError, ValueError):
+            continue
+        if soft == resource.RLIM_INFINITY or soft < 0 or soft >= _NO_LIMIT:
+            continue
+        used = _proc_status_bytes(status, key) or 0
+        limits.append((max(0, soft - used), f'{label} {soft / 2**20:.0f} MiB ({used / 2**20:.0f} MiB mapped)'))
+    return limits
+
+
+def _read_text(path: str) -> Optional[str]:
+    try:
+        with open(path) as f:
+            return f.read()
+    except OSError:
+        return None
+
+
+def default_map_budget(root: str = '/', getrlimit=None) -> Tuple[int, str]:
+    """The default max_map_memory_mb and why: an eighth of the memory the process may still use
+    under the tightest of its limits (``memory_limits``: physical memory, cgroup, ulimit), so
+    that no frame size or calibration can make the node take the machine or its container, and
+    maps that could not be built are refused before anything is adopted or saved (3 GiB on a
+    24 GiB machine without limits: the maps of 400 megapixels)."""
+    room, what = min(memory_limits(root, getrlimit), key=lambda limit: limit[0])
+    return max(64, int(room // 8 // 2**20)), f'an eighth of {what}'
+
+
+def default_map_budget_mb() -> int:
+    """The default max_map_memory_mb (``default_map_budget``)."""
+    return default_map_budget()[0]
 
 
 def map_bytes(width: int, height: int) -> int:
@@ -238,7 +332,7 @@ class ActiveCalibration:
         try:
             camera = self.camera if key == self.size else self.camera.scaled(width, height)
             rectifier = Rectifier(camera, interpolation=self.interpolation, P=calibration.P,
-                                  map_threads=map_threads)
+                                  map_threads=map_threads, R=calibration.R)
             with self._lock:
                 rectifiers = dict(self._rectifiers)  # readers without the lock see old or new
                 others = sorted((k for k in rectifiers if k != self.size),
@@ -264,6 +358,8 @@ class ActiveCalibration:
                      if k != self.size and now - self._last_used.get(k, 0.0) > idle_seconds]
             if stale:
                 self._rectifiers = {k: v for k, v in self._rectifiers.items() if k not in stale}
+        if stale:
+            return_free_memory()  # freed maps stay resident in the heap otherwise (heap.py)
         return stale
 
     @property

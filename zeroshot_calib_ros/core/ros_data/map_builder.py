@@ -8,9 +8,10 @@ import collections
 import os
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional, Tuple
 
+from .heap import return_free_memory
 from .image_frames import ActiveCalibration
 
 REBUILD_MAP_THREADS = 1
@@ -33,6 +34,10 @@ class MapJob:
     """The parameter values this calibration came from (restored if its maps cannot be built)."""
     seconds: float = 0.0
     error: Optional[BaseException] = None
+    superseded: bool = False
+    """Replaced by a newer calibration's job before its turn: never built."""
+    finished: threading.Event = field(default_factory=threading.Event)
+    """Set when the job has ended (built, failed or superseded), after ``done(job)``."""
 
 
 class MapBuilder:
@@ -48,6 +53,7 @@ class MapBuilder:
         self._pending: Optional[MapJob] = None
         self._sizes = collections.deque()
         self._queued_sizes = set()
+        self._running: Optional[MapJob] = None
         self._stopped = False
         self._thread = threading.Thread(target=self._run, name='map_builder', daemon=True)
         self._thread.start()
@@ -57,12 +63,19 @@ class MapBuilder:
         return self._pending
 
     def submit(self, job: MapJob):
+        """Build ``job`` next; a pending job it replaces before the worker took it is never built
+        (``superseded``, ``finished`` set)."""
         with self._cond:
-            self._pending = job
+            replaced, self._pending = self._pending, job
+            superseded = replaced is not None and replaced is not job and replaced is not self._running
             self._cond.notify()
+        if superseded:
+            replaced.superseded = True
+            replaced.finished.set()
 
     def request_size(self, active: ActiveCalibration, width: int, height: int):
-        """Build the maps of ``width`` x ``height`` for ``active`` (once; later calls are no-ops)."""
+        """Build the maps of ``width`` x ``height`` for ``active`` (a call while that size is queued
+        or being built is a no-op; once it is done, a new call builds it again)."""
         key = (id(active), width, height)
         with self._cond:
             if key in self._queued_sizes:
@@ -89,6 +102,7 @@ class MapBuilder:
                 if self._stopped:
                     return
                 job = self._pending if self._pending is not None else self._sizes.popleft()
+                self._running = job
             start = time.monotonic()
             try:
                 if job.size is None:
@@ -98,12 +112,17 @@ class MapBuilder:
             except Exception as exc:  # reported by the node; the calibration in force stays
                 job.error = exc
             job.seconds = time.monotonic() - start
+            return_free_memory()  # the build's temporaries and any maps it evicted (heap.py)
             with self._cond:
                 if self._pending is job:
                     self._pending = None
-                if job.size is not None and job.error:  # a built size stays queued until released
+                self._running = None
+                if job.size is not None:  # built or failed: the size may be asked for again
+                    # (its maps can be evicted from the calibration's cache later, and a frame
+                    # of that size then asks again; one that is still cached is not asked for)
                     self._queued_sizes.discard((id(job.active), *job.size))
             self._done(job)
+            job.finished.set()
 
     def forget_size(self, active: ActiveCalibration, width: int, height: int):
         """Allow ``width`` x ``height`` to be requested again (its maps were released)."""

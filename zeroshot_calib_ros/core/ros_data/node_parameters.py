@@ -108,7 +108,8 @@ PARAMETERS = {
                                         'it overrides the spec at start-up; set_camera_info saves there',
                                         'string', read_only=True),
     'max_map_memory_mb': _parameter(0, 'Memory budget of the rectification maps, MiB (0 = an eighth of the '
-                                         'machine\'s memory); a change or frame size whose maps exceed it is '
+                                         'memory the node may use: the tightest of physical memory, cgroup '
+                                         'and ulimit); a change or frame size whose maps exceed it is '
                                          'refused', 'integer', read_only=True, int_range=(0, 2**40),
                                          constraints='an integer number of MiB; 0 = automatic'),
     'refine': _parameter(False, 'Refine the calibration from straight lines in the streamed frames (issue 13): '

@@ -214,21 +214,26 @@ class Rectifier:
     costs one cv2.remap each and no allocation (3-channel images padded to 4 channels, where
     that is faster: two cvtColor as well, into two frames kept for the next one). The maps are
     built once, in the format OpenCV remaps fastest with (``map_format_for``).
-    ``map_threads``: threads building the maps (default: one per CPU).
+    ``map_threads``: threads building the maps (default: one per CPU). ``R``: the rectification
+    rotation of a CameraInfo (a stereo camera's), as cv2.initUndistortRectifyMap and image_proc
+    apply it: the rectified pixel's ray is R^T P^-1 (u, v, 1) in the raw camera's frame
+    (default: the identity).
     """
 
     def __init__(self, camera: CameraModel, balance: float = 0.0, fov_scale: float = 1.0,
-                 interpolation: int = 1, P: Optional[np.ndarray] = None, map_threads: Optional[int] = None):
+                 interpolation: int = 1, P: Optional[np.ndarray] = None, map_threads: Optional[int] = None,
+                 R: Optional[np.ndarray] = None):
         if interpolation not in INTERPOLATIONS:
             raise ValueError(f'interpolation = {interpolation!r} is invalid: allowed: 0 (nearest), '
                              '1 (linear), 2 (cubic), 4 (lanczos4)')
         self.camera = camera
         self.P = new_camera_matrix(camera, balance, fov_scale) if P is None else np.asarray(P, float)[:3, :3]
+        self.R = np.eye(3) if R is None else np.asarray(R, float).reshape(3, 3)
         self.size = (camera.width, camera.height)
         self.interpolation = INTERPOLATIONS[interpolation]
         self._version = opencv_version()
         self._four_channel_buffers = []  # (image, output) of 3-channel frames padded to 4, reused
-        self._maps = rectification_maps(camera, self.P, self.size, threads=map_threads,
+        self._maps = rectification_maps(camera, self.P, self.size, R=self.R, threads=map_threads,
                                         map_format=map_format_for(self.interpolation, self._version))
 
     @property
