@@ -86,6 +86,8 @@ def test_streamed_frames_give_a_camera_closer_to_the_truth_than_zero_shot(refine
     assert status.reason.startswith('finished: 2 frames since the camera in use'), status
     assert not refiner.due(time.monotonic() + 100)
     wait_for(lambda: refiner._process.poll() is not None, 10, 'the worker to exit once finished')
+    time.sleep(0.2)
+    assert refiner.status.state == 'refined' and refiner.status.finished, refiner.status  # finished, not failed
 
 
 def test_one_frame_is_kept_every_interval_and_the_others_are_not_copied(refiner_factory):

@@ -6,6 +6,7 @@ parameters; tests and benchmarks reach everything here without DDS.
 from __future__ import annotations
 
 import difflib
+import os
 from dataclasses import dataclass
 from typing import Iterable, List, Optional, Tuple
 
@@ -166,6 +167,30 @@ def closest_parameter_text(name: str) -> str:
     """': did you mean 'rectify'?' for a misspelled ``name`` ('' when no declared name is close)."""
     close = difflib.get_close_matches(str(name), list(PARAMETERS), n=1)
     return f': did you mean {close[0]!r}?' if close else ''
+
+
+def params_file_errors(argv) -> List[str]:
+    """One line per ``--params-file FILE`` of the ROS arguments in ``argv`` that cannot be read
+    (rcl would fail with a traceback-shaped error naming the whole argument)."""
+    errors, in_ros_args = [], False
+    argv = list(argv)
+    for i, arg in enumerate(argv):
+        if arg == '--ros-args':
+            in_ros_args = True
+        elif arg == '--':
+            in_ros_args = False
+        elif in_ros_args and arg == '--params-file':
+            if i + 1 >= len(argv):
+                errors.append('--params-file needs a file: allowed: --params-file FILE (a YAML parameters file)')
+                continue
+            path = argv[i + 1]
+            if not os.path.isfile(path):
+                why = 'is a directory' if os.path.isdir(path) else 'no such file'
+                errors.append(f'--params-file {path}: {why}: allowed: a readable YAML parameters file')
+            elif not os.access(path, os.R_OK):
+                errors.append(f'--params-file {path}: not readable (permission denied): allowed: a readable '
+                              'YAML parameters file')
+    return errors
 
 
 def number_in_range(name, value, low, high, integer=False):

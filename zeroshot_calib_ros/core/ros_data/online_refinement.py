@@ -188,8 +188,10 @@ def _receive(stream) -> Optional[dict]:
 
 
 def worker_command() -> list:
-    return [sys.executable, '-c', 'from zeroshot_calib_ros.core.ros_data.online_refinement import worker_main; '
-            'worker_main()']
+    # `python -c` puts the working directory first on sys.path: removed, so that the worker runs
+    # the package the node runs (PYTHONPATH), not a source tree the node was started in
+    return [sys.executable, '-c', 'import sys; del sys.path[0]; '
+            'from zeroshot_calib_ros.core.ros_data.online_refinement import worker_main; worker_main()']
 
 
 class OnlineRefiner:
@@ -321,7 +323,9 @@ class OnlineRefiner:
         with self._wake:
             self._done = True
             self._busy = False
-            if not self._closed:  # refined before or not: no more refinement, and said so
+            # refined before or not: no more refinement, and said so (unless finished: then its
+            # worker exits as it should)
+            if not self._closed and not self._status.finished:
                 self._status.state, self._status.reason = 'failed', reason
             self._wake.notify()
 
