@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.srv import SetParameters
+from rcl_interfaces.srv import SetParameters, SetParametersAtomically
 from sensor_msgs.msg import CameraInfo
 
 from ros_peer import (LATCHED, NODE_EXECUTABLE, diagnostics_value, domain_id, image_msg, parameter_msg,  # noqa: F401
@@ -62,7 +62,15 @@ def test_a_rejected_request_is_rejected_whole_and_every_result_says_why(peer, st
         assert all(r.reason and list(bad)[0] in r.reason for r in results), (bad, [r.reason for r in results])
     results = set_parameters(peer, rectfy=True)
     assert "did you mean 'rectify'" in results[0].reason and '[]' not in results[0].reason, results[0].reason
-    assert infos[-1].k[0] == infos[0].k[0]
+    # a read-only value given as another type (False for the integer 0) is a change, refused
+    results = set_parameters(peer, max_map_memory_mb=False, hfov=100.0)
+    assert not any(r.successful for r in results) and all('max_map_memory_mb' in r.reason for r in results)
+    # SetParametersAtomically (one result) by the same rules: a params file loaded back succeeds
+    for values, ok in (({'publish_rate': 10.0, 'vfov': 400.0}, False), ({'publish_rate': 10.0, 'hfov': 100.0}, True)):
+        request = SetParametersAtomically.Request(parameters=[parameter_msg(k, v) for k, v in values.items()])
+        result = peer.call(SetParametersAtomically, '/zeroshot_calib/set_parameters_atomically', request).result
+        assert result.successful == ok and (ok or 'vfov' in result.reason), result.reason
+    peer.spin_until(lambda: infos[-1].k[0] != infos[0].k[0], what='the hfov 100 calibration')
 
 
 def test_a_huge_rejected_value_is_shown_cut_and_its_repetitions_throttled(peer, start_node):

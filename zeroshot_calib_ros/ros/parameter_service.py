@@ -39,8 +39,24 @@ class AtomicParameterService(ParameterService):
     their current value (a params file loaded back) are no change and succeed."""
 
     def _set_parameters_callback(self, request, response):
-        node = self._get_node()
         parameters = [Parameter.from_parameter_msg(p) for p in request.parameters]
+        result, unchanged = self._apply(parameters)
+        # Whole: a rejected request rejects its unchanged read-only values too, so that no client
+        # reads one result as "this part was applied"; every result gives the reason.
+        response.results = [SetParametersResult(successful=True, reason='unchanged (read-only)')
+                            if i in unchanged and result.successful else
+                            SetParametersResult(successful=result.successful, reason=result.reason)
+                            for i in range(len(parameters))]
+        return response
+
+    def _set_parameters_atomically_callback(self, request, response):
+        """SetParametersAtomically (one result) by the same rules as SetParameters."""
+        response.result = self._apply([Parameter.from_parameter_msg(p) for p in request.parameters])[0]
+        return response
+
+    def _apply(self, parameters) -> tuple:
+        """(one SetParametersResult for the whole request, indices of unchanged read-only values)."""
+        node = self._get_node()
         # rclpy's own check names only some undeclared names (often none: "[]"): named here,
         # each with the closest declared name
         undeclared = [p.name for p in parameters if not node.has_parameter(p.name)]
@@ -62,15 +78,9 @@ class AtomicParameterService(ParameterService):
                 result = node.set_parameters_atomically(changes) if changes else SetParametersResult(successful=True)
         except ParameterNotDeclaredException as exc:
             result = SetParametersResult(successful=False, reason=f'{exc}: the whole request was rejected')
-        # Whole: a rejected request rejects its unchanged read-only values too, so that no client
-        # reads one result as "this part was applied"; every result gives the reason.
         if not result.successful and not result.reason:
             result.reason = 'rejected'
-        response.results = [SetParametersResult(successful=True, reason='unchanged (read-only)')
-                            if i in unchanged and result.successful else
-                            SetParametersResult(successful=result.successful, reason=result.reason)
-                            for i in range(len(parameters))]
-        return response
+        return result, unchanged
 
     def _wrong_type(self, param: Parameter) -> str:
         """The reason a value of the wrong type for a statically typed parameter is rejected, naming
