@@ -18,7 +18,9 @@ from sensor_msgs.msg import CameraInfo
 from ros_peer import (LATCHED, NODE_EXECUTABLE, diagnostics_value, domain_id, image_msg, parameter_msg,  # noqa: F401
                       peer, qos, ros_environment, start_node)
 from test_node_refine import REFINE, SPEC, frames, stream  # noqa: F401
+from scenes import render
 from zeroshot_calib_ros.core import CameraCalibration
+from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
 
 SPEC_1080 = ['-p', 'width:=1920', '-p', 'height:=1080', '-p', 'hfov:=118', '-p', 'vfov:=69']
 
@@ -218,3 +220,29 @@ def test_one_frame_of_another_size_first_does_not_block_refinement(peer, start_n
     refine_warnings = [line for line in node.log.splitlines() if 'WARN' in line and 'refine' in line]
     assert len(refine_warnings) <= 1, refine_warnings
     stream(peer, frames, lambda: diagnostics_value(diagnostics, 'source') == 'refined', timeout=90)
+
+
+NARROW = KannalaBrandtCamera(420.0, 420.0, 340.0, 168.0, 640, 360, np.array([0.12, -0.03, 0.0, 0.0]))
+NARROW_SPEC = ['-p', 'width:=640', '-p', 'height:=360', '-p', 'hfov:=82.8', '-p', 'vfov:=48.1']  # NARROW's, rounded
+
+
+def test_refine_publishes_and_saves_the_configured_plumb_bob_model(peer, start_node, tmp_path):  # noqa: F811
+    """distortion_model plumb_bob (a narrow lens, as config/c922.yaml): the refined camera is
+    published and saved in plumb_bob (fitted to the refined lens), in an .ini file too."""
+    url = tmp_path / 'camera.ini'
+    room = [render(NARROW, 'room', seed=1)[0]]
+    node = start_node('--ros-args', *NARROW_SPEC, '-p', 'distortion_model:=plumb_bob', *REFINE,
+                      '-p', f'camera_info_url:=file://{url}')
+    diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos and diagnostics, what='camera_info and /diagnostics')
+    stream(peer, room, lambda: diagnostics_value(diagnostics, 'source') == 'refined', timeout=90)
+    stream(peer, room, lambda: infos[-1].k[2] != infos[0].k[2], timeout=5)
+    info = infos[-1]
+    assert info.distortion_model == 'plumb_bob' and len(info.d) == 5, (info.distortion_model, info.d)
+    assert abs(info.k[2] - NARROW.cx) < 3 and abs(info.k[5] - NARROW.cy) < 3, info.k  # zero-shot: (320, 180)
+    peer.spin_until(url.exists, timeout=10, what=f'{url} to be saved')
+    saved = CameraCalibration.load(str(url))
+    assert saved.distortion_model == 'plumb_bob'
+    np.testing.assert_allclose(saved.K.ravel(), info.k, rtol=1e-9)
+    assert 'fitted to the refined lens' in node.log, node.log
