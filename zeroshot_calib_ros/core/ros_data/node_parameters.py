@@ -115,7 +115,7 @@ PARAMETERS = {
                                          constraints='an integer number of MiB; 0 = automatic'),
     'refine': _parameter(False, 'Refine the calibration from straight lines in the streamed frames: '
                                 'one frame every refine_interval s, lines and fit in a low-priority worker '
-                                'process; when the quality gate passes, the refined calibration (equidistant, '
+                                'process; when the quality gate passes, the refined calibration (in distortion_model, '
                                 'source refined) is adopted and saved to camera_info_url. Only a calibration '
                                 'from the spec (or an earlier refinement) is refined, never one from a file '
                                 'or set_camera_info', 'bool'),
