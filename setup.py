@@ -101,7 +101,7 @@ class install(_install):
 
 console_scripts = ['zeroshot-calib = zeroshot_calib_ros.cli:main']
 if _colcon_style_install(sys.argv):
-    console_scripts.append('node = zeroshot_calib_ros.ros.node:main')
+    console_scripts.append('node = zeroshot_calib_ros.ros.entry_point:main')
 
 config_files = sorted(
     glob(os.path.join('config', '*.yaml'))

@@ -657,9 +657,9 @@ MUTANTS = [
     dict(
         id='node-read-only-parameters-accept-new-values',
         file=f'{ROS}/parameter_service.py',
-        old=('            if node.has_parameter(param.name) and node.describe_parameter(param.name).read_only and \\\n'
-             '                    node.get_parameter(param.name).value == param.value:'),
-        new='            if node.has_parameter(param.name) and node.describe_parameter(param.name).read_only:',
+        old=('            if param.name not in undeclared and node.describe_parameter(param.name).read_only and \\\n'
+             '                    same_value(param.name, node.get_parameter(param.name).value, param.value):'),
+        new='            if param.name not in undeclared and node.describe_parameter(param.name).read_only:',
         behaviour='Read-only parameters cannot change at run time (given their current value they succeed as no change)',
         tests=['test/test_node_observable.py::test_read_only_parameters_refuse_new_values'],
     ),

@@ -86,6 +86,8 @@ def test_streamed_frames_give_a_camera_closer_to_the_truth_than_zero_shot(refine
     assert status.reason.startswith('finished: 2 frames since the camera in use'), status
     assert not refiner.due(time.monotonic() + 100)
     wait_for(lambda: refiner._process.poll() is not None, 10, 'the worker to exit once finished')
+    time.sleep(0.2)
+    assert refiner.status.state == 'refined' and refiner.status.finished, refiner.status  # finished, not failed
 
 
 def test_one_frame_is_kept_every_interval_and_the_others_are_not_copied(refiner_factory):
@@ -144,7 +146,7 @@ def test_a_frame_the_worker_cannot_use_is_reported_and_the_worker_goes_on(refine
     wait_for(lambda: refiner.status.frames_processed == 2, 30, 'the second frame to be processed')
     assert refiner.status.state == 'collecting' and 'too few lines' in refiner.status.reason
     refiner.stop()
-    assert refiner.status.state == 'stopped' and refiner._process.poll() is not None
+    assert refiner.status.state == 'stopped' and refiner.join(10) and refiner._process.poll() is not None
 
 
 def test_line_evidence_accumulates_over_the_newest_frames(refiner_factory):
@@ -209,3 +211,100 @@ def test_after_a_refined_camera_only_a_clearly_better_fit_is_offered_and_then_it
     assert starts[0] is None and starts[1] is None
     assert starts[2].fx == zs.fx + 2 and starts[3].fx == zs.fx + 2 and starts[4].fx == zs.fx + 4
     assert online_refinement.FINISH_AFTER == 2 * online_refinement.MAX_FRAMES
+
+
+def test_stop_returns_at_once_while_the_worker_is_busy(refiner_factory):
+    """Turning refine off runs on the node's executor thread: stop() must not wait for the worker
+    (a fit takes seconds); the worker is ended in the background."""
+    refiner = refiner_factory(SPEC, interval=0.0)
+    assert refiner.offer(render(TRUE, 'street', seed=3)[0], 0.0)
+    time.sleep(0.5)  # the worker is detecting / fitting
+    start = time.monotonic()
+    refiner.stop('refine is false')
+    seconds = time.monotonic() - start
+    assert seconds < 0.1, seconds
+    assert refiner.status.state == 'stopped' and not refiner.due(100.0)
+    wait_for(lambda: refiner._process.poll() is not None, 10, 'the worker to end in the background')
+    assert refiner.join(5.0)
+
+
+def test_a_worker_killed_after_its_first_camera_is_reported_failed(refiner_factory):
+    room = render(TRUE, 'room', seed=1)[0]
+    refiner = refiner_factory(SPEC, interval=0.0)
+    assert refiner.offer(room, 0.0)
+    wait_for(lambda: refiner.status.frames_processed == 1, 60, 'the first frame to be processed')
+    assert refiner.take_result() is not None and refiner.status.state == 'refined'
+    os.kill(refiner.pid, signal.SIGKILL)
+    wait_for(lambda: refiner.status.state == 'failed', 20, 'the kill to be noticed')
+    assert 'code -9' in refiner.status.reason
+    assert not refiner.offer(room, 10.0)
+
+
+def _scripted_worker(monkeypatch, script, **start):
+    from zeroshot_calib_ros.core.estimation import refine as refine_module
+    from zeroshot_calib_ros.core.ros_data.online_refinement import _Worker
+    zs = zero_shot_camera(SPEC, 640, 360)
+    answers, sizes = iter(script), []
+
+    def scripted(spec, curves, width, height, tolerance, initial=None, solution=None):
+        u, accepted = next(answers)
+        sizes.append((width, height, initial))
+        camera = KannalaBrandtCamera(zs.fx * width / 640 + len(sizes), zs.fy * width / 640, width / 2, height / 2,
+                                     width, height, zs.D)
+        return refine_module.Refinement(camera, accepted, 'accepted' if accepted else 'too few lines', u, 3.0,
+                                        0, 0, None, None, 0.0, 0.0, zero_shot_camera=zs)
+    monkeypatch.setattr(refine_module, 'refine_camera', scripted)
+    values = {'spec': SPEC, 'fov_tolerance_deg': 1.0, 'initial': None, 'max_frames': 8, 'finish_after': 16}
+    values.update(start)
+    return _Worker(values), sizes
+
+
+def test_a_restarted_refiner_offers_only_a_fit_better_than_the_calibration_in_force(monkeypatch):
+    """Refine turned off and on (or restarted after a failure) with a refined calibration in
+    force: the 0.7x rule holds against that calibration's uncertainty, not from scratch."""
+    from zeroshot_calib_ros.core.ros_data.online_refinement import _camera_tuple
+    in_force = zero_shot_camera(SPEC, 640, 360)
+    worker, _ = _scripted_worker(monkeypatch, [(2.06, True), (1.5, True), (1.3, True)],
+                                 initial=_camera_tuple(in_force), reference_uncertainty_px=2.0)
+    black = np.zeros((360, 640), np.uint8)
+    got = [worker.frame(black) for _ in range(3)]
+    assert [a['camera'] is not None for a in got] == [False, False, True]
+    assert 'not better than the camera in use (2 px)' in got[0]['status']['reason'], got[0]['status']
+
+
+def test_refinement_follows_the_size_the_stream_has(monkeypatch):
+    """One frame of another size (same aspect ratio) first: the refinement restarts its sampling
+    at the stream's size instead of refusing every later frame."""
+    worker, sizes = _scripted_worker(monkeypatch, [(None, False), (None, False), (2.0, True), (3.0, True)])
+    small, big = np.zeros((360, 640), np.uint8), np.zeros((720, 1280), np.uint8)
+    first = worker.frame(small)
+    assert first['status']['state'] == 'collecting'
+    second = worker.frame(big)
+    assert second['status']['state'] == 'collecting' and second['status']['frames_used'] == 1, second['status']
+    assert 'restarted at 1280x720' in second['status']['reason'], second['status']
+    third = worker.frame(big)
+    assert third['camera'] is not None and third['camera'][4:6] == (1280, 720)
+    # back to the small size: the camera in use is scaled to it, and a fit must still beat it by 0.7x
+    # of its uncertainty at that size (2 px at 1280x720 -> 1 px at 640x360)
+    fourth = worker.frame(small)
+    assert fourth['camera'] is None and sizes[-1][:2] == (640, 360), fourth['status']
+    assert sizes[-1][2].width == 640 and sizes[-1][2].fx == pytest.approx(third['camera'][0] / 2)
+
+
+def test_refined_calibration_in_the_configured_plumb_bob_model():
+    """With distortion_model plumb_bob (a narrow lens, config/c922.yaml) the refined camera is
+    published in plumb_bob, fitted with the zero-shot fitting code, with its error."""
+    from zeroshot_calib_ros.core.ros_data.online_refinement import refined_calibration_and_fit
+    narrow = zero_shot_camera(CameraSpec(1280, 720, hfov=70.42, vfov=43.3), 1280, 720)
+    refined = KannalaBrandtCamera(narrow.fx, narrow.fy, 645.0, 355.0, 1280, 720, narrow.D)
+    record, fit_error_px = refined_calibration_and_fit(refined, 1280, 720, distortion_model='plumb_bob',
+                                                       camera_name='c922')
+    assert record.distortion_model == 'plumb_bob' and record.D.size == 5 and record.camera_name == 'c922'
+    np.testing.assert_allclose(record.K, refined.K)
+    assert fit_error_px < 0.5
+    # the published model reproduces the refined lens within the stated error over the image
+    pixels = np.stack(np.meshgrid(np.linspace(0, 1279, 33), np.linspace(0, 719, 19)), -1).reshape(-1, 2)
+    moved = np.linalg.norm(record.camera().project(refined.unproject(pixels)) - pixels, axis=-1)
+    assert np.max(moved) <= fit_error_px + 1e-6, (np.max(moved), fit_error_px)
+    equidistant, error = refined_calibration_and_fit(refined, 1280, 720)
+    assert equidistant.distortion_model == 'equidistant' and error == 0.0

@@ -45,6 +45,7 @@ import rclpy.executors  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
 from rcl_interfaces.msg import SetParametersResult  # noqa: E402
 from rclpy.exceptions import ParameterException  # noqa: E402
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
@@ -62,10 +63,12 @@ from ..core.ros_data.image_frames import (ActiveCalibration, FrameSkipped, MapBu
 from ..core.ros_data.heap import keep_frames_in_heap, resident_bytes  # noqa: E402
 from ..core.ros_data.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
 from ..core.ros_data.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
-                                             RECTIFICATION_PARAMETERS, Settings, number_in_range,
-                                             solve_from_settings, usage_text)
+                                             RECTIFICATION_PARAMETERS, Settings, changed_parameters,
+                                             number_in_range, params_file_errors, solve_from_settings,
+                                             unknown_parameter_warnings,
+                                             usage_text)
 from ..core.zeroshot.solver import NoConvergence  # noqa: E402
-from ..core.zeroshot.spec import SpecError  # noqa: E402
+from ..core.zeroshot.spec import SpecError, value_text  # noqa: E402
 from .messages import calibration_from_camera_info, fill_camera_info, serialized_camera_info  # noqa: E402
 from .parameter_service import AtomicParameterService, descriptor  # noqa: E402
 
@@ -121,6 +124,9 @@ class ZeroShotCalibNode(Node):
         self._startup_log = []
         for name, parameter in PARAMETERS.items():
             self.declare_parameter(name, parameter.default, descriptor(parameter))
+        # a misspelled -p rectfy:=true (command line or params file) would be ignored silently
+        for text in unknown_parameter_warnings(getattr(self, '_parameter_overrides', None) or {}):
+            self._log('warning', text)
         self._stats = Counter()
         self._warned_at = {}
         self._last_image_time = None  # time.monotonic() of the last frame
@@ -148,6 +154,9 @@ class ZeroShotCalibNode(Node):
         self._settings = settings
         self._refine, self._refine_interval = self._refine_values(self._values())
         self._refiner = None  # an online_refinement.OnlineRefiner while refine is on
+        # (Kannala-Brandt camera, uncertainty px) of the last refinement adopted: a restarted
+        # refiner starts from it and must beat it (0.7x), while a refined calibration is in force
+        self._refined = None
         self._refine_off = 'refine is false'  # why no refiner runs (diagnostics)
         url = self.get_parameter('camera_info_url').value
         self._url_path = resolve_camera_info_url(url, settings.camera_name)
@@ -598,6 +607,12 @@ class ZeroShotCalibNode(Node):
     def _on_set_parameters(self, parameters) -> SetParametersResult:
         if self._reverting:  # restoring the values in force (see _on_calibration_built)
             return SetParametersResult(successful=True)
+        # A change is a change only where a value differs (ros2 param load of a dump, or set to
+        # the value in force, changes nothing: a calibration from a file or set_camera_info stays)
+        changed = set(changed_parameters(self._values(), [(p.name, p.value) for p in parameters]))
+        parameters = [p for p in parameters if p.name in changed]
+        if not parameters:
+            return SetParametersResult(successful=True)
         names = {p.name for p in parameters}
         refine_values = None
         if names & set(REFINE_PARAMETERS):
@@ -630,17 +645,23 @@ class ZeroShotCalibNode(Node):
                 if new_p:
                     active = active.with_rectification(settings.balance, settings.fov_scale, build_maps=False)
         except (SpecError, CalibrationFileError, NoConvergence, ValueError) as exc:
-            self.get_logger().warning(f'parameter change rejected, calibration unchanged: {exc}')
-            return SetParametersResult(successful=False, reason=str(exc))
+            reason = str(exc)
+            if len(reason) > 1000:  # a message quoting a huge value: cut like one
+                reason = value_text(reason, 300)
+            if self._due(f'rejected {sorted(names)}'):  # rejected again soon: not logged again
+                self.get_logger().warning(f'parameter change rejected, calibration unchanged: {reason}')
+            return SetParametersResult(successful=False, reason=reason)
         except Exception as exc:  # never let a parameter value take the node down
-            self.get_logger().error(f'parameter change rejected, calibration unchanged: {exc!r}')
-            return SetParametersResult(successful=False, reason=f'cannot calibrate with these values: {exc!r}')
+            reason = f'cannot calibrate with these values: {type(exc).__name__}: {value_text(str(exc), 300)}'
+            if self._due(f'rejected {sorted(names)}'):
+                self.get_logger().error(f'parameter change rejected, calibration unchanged: {reason}')
+            return SetParametersResult(successful=False, reason=reason)
         self._settings = settings
         if refine_values is not None:
             self._refine, self._refine_interval = refine_values
             if self._refiner is not None:
                 self._refiner.interval = self._refine_interval
-        changed = ', '.join(f'{p.name}={p.value!r}' for p in parameters)
+        changed = ', '.join(f'{p.name}={value_text(p.value)}' for p in parameters)
         self._adopt(active, f'parameters changed ({changed}), re-solved:\n' + summary_text(summary)
                     if summary else f'parameters changed ({changed})', values)
         self._warn_fit(summary)
@@ -765,6 +786,7 @@ class ZeroShotCalibNode(Node):
         refiner = getattr(self, '_refiner', None)
         if refiner is not None:
             refiner.stop('the node is shutting down')
+            refiner.join(3.0)
         return super().destroy_node()
 
     # --- refine: the calibration refined from straight lines in the frames ------------------
@@ -814,8 +836,9 @@ class ZeroShotCalibNode(Node):
         # node with refine off (the default) should import before its first CameraInfo
         from ..core.ros_data.online_refinement import OnlineRefiner
 
-        initial = active.camera if active.source == 'refined' else None
-        self._refiner = OnlineRefiner(self._settings.spec, self._refine_interval, initial=initial)
+        initial, reference = self._refined if active.source == 'refined' and self._refined else (None, None)
+        self._refiner = OnlineRefiner(self._settings.spec, self._refine_interval, initial=initial,
+                                      reference_uncertainty_px=reference)
         self._refine_logged = None
         self.get_logger().info(
             f'refine: sampling one frame every {self._refine_interval:g} s (worker pid {self._refiner.pid}, '
@@ -841,17 +864,21 @@ class ZeroShotCalibNode(Node):
             return
         status = refiner.status
         key = (status.state, status.frames_processed)
-        if key != self._refine_logged and status.frames_processed:
+        if status.state == 'failed':  # the worker is gone: said once, with what to do
+            if self._refine_logged != 'failed':
+                self._refine_logged = 'failed'
+                self.get_logger().warning(
+                    f'refine: failed after {status.frames_processed} frame(s): {status.reason}; no more refinement '
+                    '(the calibration in force stays); set refine to false and true to restart it')
+        elif key != self._refine_logged and status.frames_processed:
             self._refine_logged = key
             text = (f'refine: {status.state} after {status.frames_processed} frame(s): {status.lines} lines, '
                     f'coverage {100 * status.coverage:.0f} %: {status.reason}')
-            if status.state in ('failed', 'error'):
-                self.get_logger().warning(text)
+            if status.state == 'error':
+                if self._due('refine_error'):  # a frame the worker cannot use: at most one line every few s
+                    self.get_logger().warning(text)
             else:
                 self.get_logger().info(text)
-        elif status.state == 'failed' and self._refine_logged != 'failed':
-            self._refine_logged = 'failed'
-            self.get_logger().warning(f'refine: failed: {status.reason}')
         result = refiner.take_result()
         if result is not None:
             self._adopt_refinement(result)
@@ -864,11 +891,13 @@ class ZeroShotCalibNode(Node):
         width, height = basis.calibration.width, basis.calibration.height
         settings = self._settings
         s = result.status
-        from ..core.ros_data.online_refinement import px_text as px, refined_calibration
+        from ..core.ros_data.online_refinement import px_text as px, refined_calibration_and_fit
 
         try:
-            calibration = refined_calibration(result.camera, width, height, settings.balance, settings.fov_scale,
-                                              settings.camera_name)
+            # in the configured distortion model (plumb_bob fitted to the refined lens, with its error)
+            calibration, fit_error_px = refined_calibration_and_fit(
+                result.camera, width, height, settings.balance, settings.fov_scale, settings.camera_name,
+                settings.distortion_model)
             camera = calibration.camera()
             active = ActiveCalibration(calibration, camera, 'refined', self._generation + 1, settings.rectify,
                                        settings.interpolation, build_maps=False,
@@ -885,13 +914,21 @@ class ZeroShotCalibNode(Node):
             f'{px(s.zero_shot_uncertainty_px)} -> {px(s.uncertainty_px)} px, principal point moved '
             f'{px(s.principal_point_shift_px)} px; adopting it as generation {active.generation}\n'
             f'  before (generation {basis.generation}, {basis.source}): {text(basis.calibration)}\n'
-            f'  after  (refined): {text(calibration)}')
+            f'  after  (refined): {text(calibration)}'
+            + (f'\n  {calibration.distortion_model} fitted to the refined lens: error up to {fit_error_px:.3g} px'
+               if calibration.distortion_model != 'equidistant' else ''))
+        if fit_error_px > FIT_WARNING_PX:
+            self.get_logger().warning(
+                f'the published {calibration.distortion_model} model departs from the refined lens by up to '
+                f'{fit_error_px:.3g} px (more than {FIT_WARNING_PX:g} px): consumers of CameraInfo see that error '
+                '(use distortion_model: equidistant for a lens this wide)')
         try:
             calibration.save(self._url_path)
             saved = f'saved to {self._url_path}'
         except (OSError, CalibrationFileError) as exc:
             saved = f'NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'
             self.get_logger().warning(f'refined calibration {saved}')
+        self._refined = (result.camera, s.uncertainty_px)
         self._adopt(active, f'refined calibration adopted (generation {active.generation}, source refined), '
                     f'{saved}')
 
@@ -954,14 +991,32 @@ class ZeroShotCalibNode(Node):
 
 
 def main(args=None):
+    """The node's executable. Ctrl-C at any moment ends it quietly with status 0 (including while
+    it starts: rclpy then shuts its context down under the node being built)."""
+    try:
+        return _main(args)
+    except KeyboardInterrupt:
+        return 0
+
+
+def _main(args):
     argv = sys.argv[1:] if args is None else list(args[1:])
     user_args = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
     if '-h' in user_args or '--help' in user_args:
         print(usage_text())
         return 0
+    errors = params_file_errors(argv)
+    if errors:  # rcl would end in a traceback naming the whole argument
+        for error in errors:
+            print(f'{NODE_NAME}: error: {error}', file=sys.stderr)
+        return 2
     # Process-wide, before rclpy allocates: frame-sized blocks stay in the heap (no page faults per frame)
     heap_text = keep_frames_in_heap()
-    rclpy.init(args=args)
+    try:
+        rclpy.init(args=args)
+    except _rclpy.RCLError as exc:  # arguments rcl cannot parse (it has logged its own line before)
+        print(f'{NODE_NAME}: error: {str(exc).splitlines()[0]}', file=sys.stderr)
+        return 2
     node = None
     try:
         node = ZeroShotCalibNode(heap_text=heap_text)
@@ -969,6 +1024,10 @@ def main(args=None):
         print(f'{NODE_NAME}: error: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
+    except Exception:
+        if not rclpy.ok():  # Ctrl-C while starting: the context was shut down under the node
+            return 0
+        raise
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):

@@ -145,15 +145,18 @@ def fit_plumb_bob(camera: RadialCamera, samples: int = FIT_SAMPLES) -> Distortio
 
     Good for narrow lenses only: a polynomial in the pinhole radius tan(theta) cannot follow a
     fisheye towards 90 degrees, which the reported error shows.
+
+    A camera with fx != fy whose ``theta_d`` is per normalised radius (a refined Kannala-Brandt
+    camera) is fitted the same way, with its own fx, fy, and the error in pixels of the larger.
     """
     theta = _angles(camera, samples)
     r = np.tan(theta)
     target = camera.theta_d(theta)
     A = np.stack([r ** 3, r ** 5, r ** 7], axis=1)
     k = _chebyshev_fit(A, target - r)
-    error = camera.f * float(np.max(np.abs(A @ k - (target - r))))
+    error = max(camera.fx, camera.fy) * float(np.max(np.abs(A @ k - (target - r))))
     D = np.array([k[0], k[1], 0.0, 0.0, k[2]])
-    fitted = PlumbBobCamera(camera.f, camera.f, camera.cx, camera.cy, camera.width, camera.height, D)
+    fitted = PlumbBobCamera(camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height, D)
     return DistortionFit('plumb_bob', D, error, fitted)
 
 

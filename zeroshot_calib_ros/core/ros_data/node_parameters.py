@@ -5,14 +5,16 @@ parameters; tests and benchmarks reach everything here without DDS.
 """
 from __future__ import annotations
 
+import difflib
+import os
 from dataclasses import dataclass
-from typing import Optional, Tuple
+from typing import Iterable, List, Optional, Tuple
 
 import numpy as np
 
 from ..zeroshot.presets import spec_with_preset
 from ..zeroshot.solver import PROJECTION_CHOICES, solve_zero_shot
-from ..zeroshot.spec import MAX_IMAGE_SIDE, CameraSpec, SpecError
+from ..zeroshot.spec import MAX_IMAGE_SIDE, CameraSpec, SpecError, value_text
 from .calibration_file import DISTORTION_MODELS, CameraCalibration, solution_summary
 from .image_frames import ActiveCalibration
 from .rectify import INTERPOLATIONS
@@ -112,9 +114,9 @@ PARAMETERS = {
                                          'and ulimit); a change or frame size whose maps exceed it is '
                                          'refused', 'integer', read_only=True, int_range=(0, 2**40),
                                          constraints='an integer number of MiB; 0 = automatic'),
-    'refine': _parameter(False, 'Refine the calibration from straight lines in the streamed frames (issue 13): '
+    'refine': _parameter(False, 'Refine the calibration from straight lines in the streamed frames: '
                                 'one frame every refine_interval s, lines and fit in a low-priority worker '
-                                'process; when the quality gate passes, the refined calibration (equidistant, '
+                                'process; when the quality gate passes, the refined calibration (in distortion_model, '
                                 'source refined) is adopted and saved to camera_info_url. Only a calibration '
                                 'from the spec (or an earlier refinement) is refined, never one from a file '
                                 'or set_camera_info', 'bool'),
@@ -123,6 +125,73 @@ PARAMETERS = {
                                        fp_range=(0.1, 3600.0), dynamic=True,
                                        constraints='a number of seconds from 0.1 to 3600'),
 }
+
+
+ROS_PARAMETERS = ('use_sim_time', 'start_type_description_service')
+"""Parameters every rclpy node declares itself."""
+ROS_PARAMETER_PREFIXES = ('qos_overrides.',)
+"""Parameters rclpy reads itself (QoS overrides of publishers and subscriptions)."""
+
+
+def same_value(name: str, old, new) -> bool:
+    """Whether ``new`` is the value ``old`` of parameter ``name`` already is, compared as typed
+    values: for a number parameter an INTEGER 115 is the DOUBLE 115.0 (the node reads both as
+    the same number), never a bool or a string; for the others, the same type and value."""
+    parameter = PARAMETERS.get(name)
+    if parameter is not None and parameter.type in ('double', 'integer'):
+        numbers = [v for v in (old, new) if isinstance(v, (int, float)) and not isinstance(v, bool)]
+        if len(numbers) == 2:
+            return float(old) == float(new)
+    return type(old) is type(new) and old == new
+
+
+def changed_parameters(current: dict, parameters: Iterable[Tuple[str, object]]) -> List[str]:
+    """Names of ``parameters`` ((name, value) pairs) whose value differs from ``current``'s
+    (``same_value``); a name not in ``current`` is a change."""
+    return [name for name, value in parameters
+            if name not in current or not same_value(name, current[name], value)]
+
+
+def unknown_parameter_warnings(names: Iterable[str]) -> List[str]:
+    """One line per name that is none of the node's parameters (nor rclpy's own), with the
+    closest declared name when there is one (a misspelled `-p rectfy:=true`)."""
+    lines = []
+    for name in names:
+        if name in PARAMETERS or name in ROS_PARAMETERS or name.startswith(ROS_PARAMETER_PREFIXES):
+            continue
+        lines.append(f'unknown parameter {value_text(name)} ignored{closest_parameter_text(name)} '
+                     '(--help lists the parameters)')
+    return lines
+
+
+def closest_parameter_text(name: str) -> str:
+    """': did you mean 'rectify'?' for a misspelled ``name`` ('' when no declared name is close)."""
+    close = difflib.get_close_matches(str(name), list(PARAMETERS), n=1)
+    return f': did you mean {close[0]!r}?' if close else ''
+
+
+def params_file_errors(argv) -> List[str]:
+    """One line per ``--params-file FILE`` of the ROS arguments in ``argv`` that cannot be read
+    (rcl would fail with a traceback-shaped error naming the whole argument)."""
+    errors, in_ros_args = [], False
+    argv = list(argv)
+    for i, arg in enumerate(argv):
+        if arg == '--ros-args':
+            in_ros_args = True
+        elif arg == '--':
+            in_ros_args = False
+        elif in_ros_args and arg == '--params-file':
+            if i + 1 >= len(argv):
+                errors.append('--params-file needs a file: allowed: --params-file FILE (a YAML parameters file)')
+                continue
+            path = argv[i + 1]
+            if not os.path.isfile(path):
+                why = 'is a directory' if os.path.isdir(path) else 'no such file'
+                errors.append(f'--params-file {path}: {why}: allowed: a readable YAML parameters file')
+            elif not os.access(path, os.R_OK):
+                errors.append(f'--params-file {path}: not readable (permission denied): allowed: a readable '
+                              'YAML parameters file')
+    return errors
 
 
 def number_in_range(name, value, low, high, integer=False):

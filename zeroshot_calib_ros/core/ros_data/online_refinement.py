@@ -47,6 +47,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..estimation.terms import FOV_TOLERANCE_DEG
+from ..lens.fitting import DISTORTION_FITS
 from ..lens.models import KannalaBrandtCamera
 from ..zeroshot.spec import CameraSpec
 from .calibration_file import CameraCalibration
@@ -121,10 +122,30 @@ def refined_calibration(camera: KannalaBrandtCamera, width: int, height: int, ba
                         fov_scale: float = 1.0, camera_name: str = 'camera') -> CameraCalibration:
     """The ROS record (``equidistant``, P chosen by ``balance`` and ``fov_scale``) of a refined
     camera, at ``width`` x ``height`` (the calibration's size; the camera is scaled to it)."""
+    return refined_calibration_and_fit(camera, width, height, balance, fov_scale, camera_name)[0]
+
+
+def refined_calibration_and_fit(camera: KannalaBrandtCamera, width: int, height: int, balance: float = 0.0,
+                                fov_scale: float = 1.0, camera_name: str = 'camera',
+                                distortion_model: str = 'equidistant'):
+    """(ROS record, fit error px) of a refined camera in ``distortion_model`` (the node's
+    parameter): ``equidistant`` is the refined camera itself (error 0); ``plumb_bob`` is fitted
+    to it with the zero-shot fitting code (``core/lens/fitting.py``), whose maximum image
+    error over the image is returned. P is chosen by ``balance`` and ``fov_scale`` for the
+    published model; the camera is scaled to ``width`` x ``height`` (the calibration's size)."""
     if (camera.width, camera.height) != (width, height):
         camera = camera.scaled(width, height)
+    error = 0.0
+    if distortion_model != 'equidistant':
+        if distortion_model not in DISTORTION_FITS:
+            raise ValueError(f'distortion_model = {distortion_model!r} is invalid: allowed: '
+                             + ', '.join(DISTORTION_FITS))
+        fit = DISTORTION_FITS[distortion_model](camera)
+        camera, error = fit.camera, float(fit.max_error_px)
+    D = camera.D if distortion_model == 'equidistant' else fit.D
     P = np.hstack([new_camera_matrix(camera, balance, fov_scale), np.zeros((3, 1))])
-    return CameraCalibration(width, height, camera.K, 'equidistant', camera.D, np.eye(3), P, camera_name)
+    return (CameraCalibration(width, height, camera.K, distortion_model, D, np.eye(3), P, camera_name),
+            error)
 
 
 def _camera_tuple(camera: Optional[KannalaBrandtCamera]):
@@ -167,20 +188,25 @@ def _receive(stream) -> Optional[dict]:
 
 
 def worker_command() -> list:
-    return [sys.executable, '-c', 'from zeroshot_calib_ros.core.ros_data.online_refinement import worker_main; '
-            'worker_main()']
+    # `python -c` puts the working directory first on sys.path: removed, so that the worker runs
+    # the package the node runs (PYTHONPATH), not a source tree the node was started in
+    return [sys.executable, '-c', 'import sys; del sys.path[0]; '
+            'from zeroshot_calib_ros.core.ros_data.online_refinement import worker_main; worker_main()']
 
 
 class OnlineRefiner:
     """Samples frames and refines the camera of ``spec`` in a worker process (module docstring).
 
     ``initial``: the camera to start from (an earlier refinement); zero-shot's otherwise.
+    ``reference_uncertainty_px``: the uncertainty of ``initial`` when it is the calibration in
+    force (an earlier refiner's result): a fit is then offered only at ``IMPROVEMENT`` times it,
+    as if this refiner had offered ``initial`` (the rule holds across restarts).
     ``command``: the worker's argv (tests give a broken one)."""
 
     def __init__(self, spec: CameraSpec, interval: float = DEFAULT_INTERVAL,
                  initial: Optional[KannalaBrandtCamera] = None, fov_tolerance_deg: float = FOV_TOLERANCE_DEG,
                  max_frames: int = MAX_FRAMES, finish_after: int = FINISH_AFTER,
-                 command: Optional[Sequence[str]] = None):
+                 command: Optional[Sequence[str]] = None, reference_uncertainty_px: Optional[float] = None):
         self.spec = spec
         self.interval = float(interval)
         self.initial = initial
@@ -193,6 +219,7 @@ class OnlineRefiner:
         self._slot = None  # (array, time) the sender writes next
         self._closed = False
         self._done = False  # refined, failed or stopped: no more frames
+        self._ender = None  # the thread that ends the worker after stop()
         env = dict(os.environ)
         package_root = str(Path(__file__).resolve().parents[3])
         env['PYTHONPATH'] = package_root + (os.pathsep + env['PYTHONPATH'] if env.get('PYTHONPATH') else '')
@@ -209,6 +236,8 @@ class OnlineRefiner:
         _lower_priority(self._process.pid)  # at once, before the worker imports anything
         self._start_message = {'kind': 'start', 'spec': spec, 'fov_tolerance_deg': float(fov_tolerance_deg),
                                'initial': _camera_tuple(initial), 'max_frames': int(max_frames),
+                               'reference_uncertainty_px': (None if reference_uncertainty_px is None
+                                                            else float(reference_uncertainty_px)),
                                'finish_after': int(finish_after)}
         self._sender = threading.Thread(target=self._send_loop, name='refine_sender', daemon=True)
         self._reader = threading.Thread(target=self._read_loop, name='refine_reader', daemon=True)
@@ -248,7 +277,10 @@ class OnlineRefiner:
             return result
 
     def stop(self, reason: str = 'stopped', timeout: float = 2.0):
-        """End the worker (the state becomes ``stopped`` unless it was refined or failed)."""
+        """Stop refining at once (the state becomes ``stopped`` unless it was refined or failed;
+        no frame is taken after) and end the worker in the background: its input is closed, it is
+        given ``timeout`` seconds to exit (it may be in the middle of a fit), then killed. Returns
+        without waiting (the caller is the node's executor thread); ``join`` waits for the end."""
         with self._wake:
             if self._closed:
                 return
@@ -258,8 +290,20 @@ class OnlineRefiner:
             self._wake.notify()
         if self._process is None:
             return
+        self._ender = threading.Thread(target=self._end_worker, args=(timeout,), name='refine_stop', daemon=True)
+        self._ender.start()
+
+    def join(self, timeout: Optional[float] = None) -> bool:
+        """Wait until a stopped refiner's worker and threads have ended; whether they have."""
+        ender = self._ender
+        if ender is not None:
+            ender.join(timeout)
+            return not ender.is_alive()
+        return self._process is None or self._process.poll() is not None
+
+    def _end_worker(self, timeout: float):
         try:
-            self._process.stdin.close()
+            self._process.stdin.close()  # may wait for a frame being written: here, not in stop()
         except (OSError, ValueError):
             pass
         try:
@@ -279,7 +323,9 @@ class OnlineRefiner:
         with self._wake:
             self._done = True
             self._busy = False
-            if not self._closed and self._status.state != 'refined':
+            # refined before or not: no more refinement, and said so (unless finished: then its
+            # worker exits as it should)
+            if not self._closed and not self._status.finished:
                 self._status.state, self._status.reason = 'failed', reason
             self._wake.notify()
 
@@ -379,6 +425,11 @@ class _Worker:
         self.size = None
         self.camera = None  # the estimate detections use
         self.offered = None  # (camera, uncertainty px) of the last camera offered
+        # the calibration in force (an earlier refiner's result) and its uncertainty: the reference
+        # of the IMPROVEMENT rule from the first frame on
+        self.reference = start.get('reference_uncertainty_px')
+        if self.initial is None:
+            self.reference = None
         self.offers = 0
         self.since_offer = 0
 
@@ -387,13 +438,19 @@ class _Worker:
         from ..lines.detect import detect_curves
         start = time.monotonic()
         height, width = image.shape[:2]
+        resized = ''
         if self.size is not None and (width, height) != self.size:
-            raise ValueError(f'the frame is {width}x{height}, the frames before were {self.size[0]}x{self.size[1]}: '
-                             'one size per refinement')
+            spec = self.spec
+            if abs(width * spec.height - height * spec.width) > 0.01 * spec.width * spec.height:
+                raise ValueError(f'images are {width}x{height} but the spec is {spec.width}x{spec.height}: '
+                                 'not the same aspect ratio')
+            resized = self._follow_size(width, height)
         camera = self.camera
         if camera is None:
             camera = (self.initial.scaled(width, height) if self.initial is not None else
                       zero_shot_camera(self.spec, width, height, self.solution))
+        if self.offered is None and self.reference is not None:  # the calibration in force
+            self.offered = (camera, self.reference)
         curves = detect_curves(image, camera, image_id=self.count + 1)
         frames = (self.frames + [curves])[-self.max_frames:]
         every = [c for frame in frames for c in frame]
@@ -419,11 +476,15 @@ class _Worker:
         elif self.offered is not None:
             self.since_offer += 1
         finished = self.offered is not None and self.since_offer >= self.finish_after
+        if resized:
+            reason = f'{resized}; {reason}'
         if finished:
             reason = (f'finished: {self.since_offer} frames since the camera in use without a fit better by '
                       f'{100 * (1 - IMPROVEMENT):.0f} % ({reason})')
-        if self.offered is not None:
+        if self.offered is not None and (self.offers or self.reference is None):
             state = 'refined'
+        elif self.offered is not None:
+            state = 'collecting'  # the calibration in force is an earlier refinement: no better fit yet
         else:
             state = 'insufficient' if len(self.frames) >= self.max_frames else 'collecting'
         status = RefineStatus(
@@ -432,6 +493,24 @@ class _Worker:
             result.uncertainty_px, result.zero_shot_uncertainty_px, float(result.principal_point_shift_px),
             time.monotonic() - start, self.offers, finished)
         return {'status': dataclasses.asdict(status), 'camera': _camera_tuple(result.camera) if offer else None}
+
+
+    def _follow_size(self, width: int, height: int) -> str:
+        """Frames of another size than the ones before (a camera that changed its mode, or one
+        odd frame first): sampling restarts at the new size (curves are in pixels of their
+        frame), the camera in use and its uncertainty scaled to it; what the reason says."""
+        old = self.size
+        scale = width / old[0]
+        if self.camera is not None:
+            self.camera = self.camera.scaled(width, height)
+        if self.offered is not None:
+            camera, uncertainty = self.offered
+            self.offered = (camera.scaled(width, height), None if uncertainty is None else uncertainty * scale)
+        if self.reference is not None:
+            self.reference *= scale
+        self.frames = []
+        return (f'the frames are {width}x{height} now, {old[0]}x{old[1]} before: sampling restarted '
+                f'at {width}x{height}')
 
 
 def px_text(value) -> str:

@@ -8,6 +8,20 @@ from typing import Optional
 MAX_IMAGE_SIDE = 100_000
 """Largest accepted image side in pixels (well above any sensor; catches typos like 19200)."""
 
+VALUE_TEXT_CHARS = 80
+"""Longest text of a rejected value in an error message (a longer one is cut, its length said)."""
+
+
+def value_text(value, limit: int = VALUE_TEXT_CHARS) -> str:
+    """``repr(value)``, cut to ``limit`` characters with '... (N characters)' when longer: a
+    rejected value goes into log lines and service replies, and a 1 MB string must not."""
+    text = repr(value)
+    if len(text) <= limit:
+        return text
+    size = len(value) if isinstance(value, str) else len(text)
+    return f'{text[:limit]}... ({size} characters)'
+
+
 MAX_FOV_DEG = 360.0
 """A spec FOV is an angle across the image; models narrow this further (see projections)."""
 
@@ -26,7 +40,7 @@ class SpecError(ValueError):
         self.allowed = allowed
         self.reason = reason
         detail = f'{reason}; ' if reason else ''
-        super().__init__(f'{field} = {value!r} is invalid: {detail}allowed: {allowed}')
+        super().__init__(f'{field} = {value_text(value)} is invalid: {detail}allowed: {allowed}')
 
 
 def _check_side(field: str, value) -> int:
