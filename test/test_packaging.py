@@ -7,6 +7,7 @@ installed into lib/zeroshot_calib_ros/ and never into a bin/ directory (where
 it would shadow Node.js).
 """
 
+import ast
 import configparser
 import json
 import os
@@ -29,6 +30,13 @@ EXEC_DEPENDS = {
     'python3-opencv', 'python3-yaml',
 }
 TEST_DEPENDS = {'python3-pytest'}
+# the rosdep key (package.xml) that provides each top-level module an installed file may import
+ROSDEP_KEY_OF_MODULE = {
+    'rclpy': 'rclpy', 'rcl_interfaces': 'rcl_interfaces', 'sensor_msgs': 'sensor_msgs',
+    'diagnostic_msgs': 'diagnostic_msgs', 'numpy': 'python3-numpy', 'scipy': 'python3-scipy',
+    'cv2': 'python3-opencv', 'yaml': 'python3-yaml', 'launch': 'launch', 'launch_ros': 'launch_ros',
+    'ament_index_python': 'ament_index_python',
+}
 
 
 @pytest.fixture(scope='module')
@@ -173,3 +181,38 @@ def test_install_tree_is_byte_compiled():
         if int.from_bytes(header[8:12], 'little') != int(source.stat().st_mtime) & 0xFFFFFFFF:
             stale.append(f'{source.name}: .pyc older than the source')
     assert not stale, stale
+
+
+def _top_level_imports(path):
+    """The top-level modules a Python file imports (absolute imports only; every import
+    statement, also those inside functions and try blocks)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name.split('.')[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.add(node.module.split('.')[0])
+    return found
+
+
+def test_package_xml_exec_depends_cover_every_import_of_the_install_tree():
+    """`rosdep install --from-paths src` installs package.xml's exec_depends, and nothing else:
+    every module that an installed .py file (the package, the launch files) imports must come
+    from the standard library, the package itself or an exec_depend; and an installed launch
+    file needs `ros2launch` for `ros2 launch` itself."""
+    _require_install_tree()
+    exec_depends = {e.text for e in ET.parse(ROOT / 'package.xml').getroot().findall('exec_depend')}
+    files = sorted(INSTALL.rglob('*.py'))
+    launch_files = [f for f in files if f.name.endswith('.launch.py')]
+    assert launch_files, 'no launch file in the install tree'
+    missing = {}
+    for path in files:
+        for module in sorted(_top_level_imports(path) - set(sys.stdlib_module_names) - {PKG}):
+            assert module in ROSDEP_KEY_OF_MODULE, (
+                f'{path.relative_to(INSTALL)} imports {module}: add its rosdep key to ROSDEP_KEY_OF_MODULE '
+                'and to package.xml')
+            if ROSDEP_KEY_OF_MODULE[module] not in exec_depends:
+                missing.setdefault(ROSDEP_KEY_OF_MODULE[module], str(path.relative_to(INSTALL)))
+    if 'ros2launch' not in exec_depends:
+        missing['ros2launch'] = f'`ros2 launch` of {launch_files[0].name}'
+    assert not missing, f'package.xml lacks <exec_depend>s (key: needed by): {missing}'
