@@ -106,8 +106,9 @@ if _colcon_style_install(sys.argv):
 config_files = sorted(
     glob(os.path.join('config', '*.yaml'))
     + glob(os.path.join('config', '*.yml'))
-    + glob(os.path.join('config', '*.xml'))
-    + glob(os.path.join('config', '*.launch.py')))
+    + glob(os.path.join('config', '*.xml')))
+# share/<package>/launch/, where bringups include them from (FindPackageShare + 'launch')
+launch_files = sorted(glob(os.path.join('launch', '*.launch.py')))
 
 setup(
     name=package_name,
@@ -119,6 +120,7 @@ setup(
             ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', config_files),
+        ('share/' + package_name + '/launch', launch_files),
     ],
     install_requires=[
         'numpy',

@@ -85,7 +85,7 @@ def test_params_file_in_a_namespace_as_launch_ros_starts_it(peer, start_node, tm
 
 
 def test_old_root_namespace_key_is_gone():
-    for path in [*PARAMS_FILES, REPO / 'README.md', REPO / 'config' / 'zeroshot_calib.launch.py']:
+    for path in [*PARAMS_FILES, REPO / 'README.md', REPO / 'launch' / 'zeroshot_calib.launch.py']:
         text = path.read_text()
         assert '\nzeroshot_calib:\n' not in text and '(zeroshot_calib: ros__parameters)' not in text, path
 
@@ -104,7 +104,7 @@ from launch.launch_description_sources import PythonLaunchDescriptionSource
 arguments = {{'namespace': 'front', 'image': '/front/image_raw', 'rectify': 'true'}}.items()
 service = LaunchService()
 service.include_launch_description(LaunchDescription([
-    IncludeLaunchDescription(PythonLaunchDescriptionSource({str(SHARE / 'config' / 'zeroshot_calib.launch.py')!r}),
+    IncludeLaunchDescription(PythonLaunchDescriptionSource({str(SHARE / 'launch' / 'zeroshot_calib.launch.py')!r}),
                              launch_arguments=arguments),
     TimerAction(period=8.0, actions=[Shutdown()])]))
 sys.exit(service.run())

@@ -13,7 +13,7 @@ from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / 'config'
-LAUNCH_FILE = CONFIG / 'zeroshot_calib.launch.py'
+LAUNCH_FILE = REPO / 'launch' / 'zeroshot_calib.launch.py'
 PARAMS_FILES = sorted(CONFIG.glob('*.yaml'))
 PARAMS_FILE_CAMERAS = {
     # file: (its row of the paper's Table 2, frame_id, distortion_model and its number of coefficients)

@@ -47,7 +47,7 @@ def source_copy(tmp_path_factory):
     for name in ('setup.py', 'setup.cfg', 'package.xml'):
         shutil.copy2(ROOT / name, dst / name)
     ignore = shutil.ignore_patterns('__pycache__', '*.pyc', '*.egg-info')
-    for name in ('resource', 'config', PKG):
+    for name in ('resource', 'config', 'launch', PKG):
         if (ROOT / name).is_dir():
             shutil.copytree(ROOT / name, dst / name, ignore=ignore)
     return dst
@@ -216,3 +216,17 @@ def test_package_xml_exec_depends_cover_every_import_of_the_install_tree():
     if 'ros2launch' not in exec_depends:
         missing['ros2launch'] = f'`ros2 launch` of {launch_files[0].name}'
     assert not missing, f'package.xml lacks <exec_depend>s (key: needed by): {missing}'
+
+
+def test_launch_files_are_installed_under_share_launch():
+    """Robot bringups include a package's launch files as
+    ``PathJoinSubstitution([FindPackageShare('zeroshot_calib_ros'), 'launch', 'zeroshot_calib.launch.py'])``:
+    the install tree has it at share/zeroshot_calib_ros/launch/, the repository keeps it in launch/,
+    and none is kept beside the params files in config/ (an install tree built before
+    the move keeps its stale copy there: `ros2 launch` then finds two; remove install/ once)."""
+    _require_install_tree()
+    share = INSTALL / 'share' / PKG
+    assert (share / 'launch' / 'zeroshot_calib.launch.py').is_file(), sorted(
+        str(p.relative_to(share)) for p in share.rglob('*.launch.py'))
+    assert (ROOT / 'launch' / 'zeroshot_calib.launch.py').is_file()
+    assert not list((ROOT / 'config').glob('*.launch.py'))
