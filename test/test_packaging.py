@@ -230,3 +230,32 @@ def test_launch_files_are_installed_under_share_launch():
         str(p.relative_to(share)) for p in share.rglob('*.launch.py'))
     assert (ROOT / 'launch' / 'zeroshot_calib.launch.py').is_file()
     assert not list((ROOT / 'config').glob('*.launch.py'))
+
+
+def test_symlink_install_puts_the_cli_on_path(source_copy, tmp_path):
+    """`colcon build --symlink-install` (setup.py develop): after `source install/setup.bash`
+    the CLI runs from install/zeroshot_calib_ros/bin, `ros2 run` finds `node` in
+    lib/zeroshot_calib_ros/, and `node` is on no PATH."""
+    venv_bin = ROOT / '.venv' / 'bin'
+    if not (venv_bin / 'colcon').exists():
+        pytest.skip('colcon is not installed in .venv (make venv)')
+    install = tmp_path / 'install'
+    env = dict(os.environ, PATH=f'{venv_bin}:{os.environ["PATH"]}', VIRTUAL_ENV=str(ROOT / '.venv'))
+    env.pop('PYTHONDONTWRITEBYTECODE', None)
+    built = subprocess.run(['colcon', '--log-base', str(tmp_path / 'log'), 'build', '--symlink-install',
+                            '--paths', str(source_copy), '--build-base', str(tmp_path / 'build'),
+                            '--install-base', str(install), '--event-handlers', 'console_direct-'],
+                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    log = tmp_path / 'log' / 'latest_build' / PKG / 'stdout_stderr.log'
+    assert built.returncode == 0, built.stdout[-2000:] + built.stderr[-2000:] + (log.read_text() if log.exists() else '')
+    assert os.access(install / PKG / 'lib' / PKG / 'node', os.X_OK)
+    clean = {'HOME': os.environ.get('HOME', '/root'), 'PATH': '/usr/local/bin:/usr/bin:/bin'}
+    done = subprocess.run(['bash', '-c', f'source {install}/setup.bash && command -v zeroshot-calib && '
+                           '{ command -v node | grep -c zeroshot || true; } && '
+                           'zeroshot-calib solve --preset gopro_hero9_wide --json'],
+                          env=clean, capture_output=True, text=True, timeout=120, cwd='/')
+    assert done.returncode == 0, done.stdout + done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0] == str(install / PKG / 'bin' / 'zeroshot-calib')
+    assert lines[1] == '0'  # `node` stays off PATH
+    assert abs(json.loads(lines[2])['f'] - 876.0) < 0.1  # the paper's Table 2, Hero9(W1)
