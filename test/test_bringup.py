@@ -256,3 +256,35 @@ def test_launch_arguments_remap_topics_and_set_name_log_level_and_sim_time(peer,
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait()
+
+
+def test_launch_default_spec_and_frames_of_another_aspect_ratio(peer, start_node, tmp_path):
+    """`ros2 launch ... ` without params_file runs the Hero9 1920x1080 (16:9) spec; a 640x480
+    (4:3) camera cannot be calibrated by it: no CameraInfo of that size (none made up), and the
+    node says what is missing: a WARN for each frame size that names the parameters to set
+    (repeats throttled, not once for all sizes) and a /diagnostics ERROR that names the size."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    node = start_node(*launch_ros_arguments(tmp_path, SHARE / 'config' / 'hero9_w1.yaml', namespace='/camera',
+                                            remappings=[('image_raw', '/camera/image_raw')],
+                                            parameters={'rectify': False, 'use_sim_time': False}))
+    infos = peer.collect(CameraInfo, '/camera/camera_info', LATCHED)
+    diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
+    pub = peer.image_publisher(qos(ReliabilityPolicy.RELIABLE), topic='/camera/image_raw')
+    for (width, height), frames in [((640, 480), 8), ((320, 240), 4)]:
+        frame = image_msg(np.zeros((height, width), np.uint8), 'mono8', 5_000_000_000)
+        for _ in range(frames):
+            pub.publish(frame)
+            peer.spin_for(0.25)
+    def errors():
+        return [s.message for d in diagnostics for s in d.status if s.level == DiagnosticStatus.ERROR]
+
+    peer.spin_until(lambda: any('320x240' in m for m in errors()), timeout=5, what='a /diagnostics ERROR on 320x240')
+    assert any('640x480' in m for m in errors()), errors()  # the first size had its ERROR too (1 Hz)
+    assert all('width' in m and 'hfov' in m for m in errors()), errors()
+    assert not [i for i in infos if (i.width, i.height) != (1920, 1080)], 'CameraInfo for frames no spec describes'
+    warnings = [line for line in node.log.splitlines() if '[WARN]' in line]
+    for size in ('640x480', '320x240'):
+        lines = [line for line in warnings if size in line]
+        assert len(lines) == 1, (size, warnings)  # once per size within the throttle period (5 s)
+        assert all(name in lines[0] for name in ('width', 'height', 'hfov', 'preset')), lines[0]
+    assert node.alive()
