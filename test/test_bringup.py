@@ -288,3 +288,31 @@ def test_launch_default_spec_and_frames_of_another_aspect_ratio(peer, start_node
         assert len(lines) == 1, (size, warnings)  # once per size within the throttle period (5 s)
         assert all(name in lines[0] for name in ('width', 'height', 'hfov', 'preset')), lines[0]
     assert node.alive()
+
+
+def test_ros2_launch_show_args_describes_every_argument(monkeypatch):
+    """`ros2 launch zeroshot_calib_ros zeroshot_calib.launch.py --show-args` (where ros2cli and
+    ros2launch are importable; else the launch file's declarations through the stand-ins): every
+    argument has a description, and the default params file's says what frames of another
+    aspect ratio get."""
+    if importlib.util.find_spec('ros2cli') and importlib.util.find_spec('ros2launch'):
+        done = subprocess.run([sys.executable, '-c', 'import sys; from ros2cli.cli import main; sys.exit(main())',
+                               'launch', 'zeroshot_calib_ros', 'zeroshot_calib.launch.py', '--show-args'],
+                              capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stdout + done.stderr
+        blocks = [b.strip().splitlines() for b in done.stdout.split('\n\n')[1:] if b.strip()]
+        described = {b[0].strip().strip("':"): b[1].strip() for b in blocks}
+    else:
+        from test_config import _DeclareLaunchArgument, _stand_in_modules
+        for name, module in _stand_in_modules(SHARE).items():
+            if name.startswith('launch'):
+                monkeypatch.setitem(sys.modules, name, module)
+        spec = importlib.util.spec_from_file_location('zeroshot_launch', REPO / 'launch' / 'zeroshot_calib.launch.py')
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        described = {e.name: e.description for e in module.generate_launch_description().entities
+                     if isinstance(e, _DeclareLaunchArgument)}
+    from test_config import LAUNCH_ARGUMENTS
+    assert set(described) == LAUNCH_ARGUMENTS
+    assert all(text and not text.startswith('(default') for text in described.values()), described
+    assert all(word in described['params_file'] for word in ('aspect ratio', 'WARN', 'diagnostics')), described
