@@ -45,7 +45,7 @@ ROS_ENV = PYTHONPATH="$(PREFIX)/lib/python$(PY_VER)/site-packages$${PYTHONPATH:+
 	AMENT_PREFIX_PATH="$(PREFIX):$(VENV)$${AMENT_PREFIX_PATH:+:$$AMENT_PREFIX_PATH}"
 
 SOURCES := $(addprefix $(TOP)/,setup.py setup.cfg package.xml) \
-	$(shell cd $(TOP) && find zeroshot_calib_ros config resource -type f \
+	$(shell cd $(TOP) && find zeroshot_calib_ros config launch resource -type f \
 		! -name '*.pyc' ! -path '*/__pycache__/*' 2>/dev/null | sed 's|^|$(TOP)/|')
 
 .PHONY: all venv build test test-ros test-jazzy-libs run clean distclean mutation

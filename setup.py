@@ -4,6 +4,7 @@ import sys
 from glob import glob
 
 from setuptools import find_packages, setup
+from setuptools.command.develop import develop as _develop
 from setuptools.command.install import install as _install
 
 package_name = 'zeroshot_calib_ros'
@@ -75,28 +76,44 @@ if __name__ == '__main__':
 """)
 
 
-class install(_install):
-    """colcon's install, with console scripts that import their module directly, plus
-    ``<prefix>/bin/zeroshot-calib``.
+def _finish_scripts(script_dir):
+    """The console scripts in ``script_dir`` import their module directly, and, where
+    ``script_dir`` is colcon's <prefix>/lib/zeroshot_calib_ros, ``<prefix>/bin/zeroshot-calib``.
 
     setup.cfg sends every script to lib/zeroshot_calib_ros/ (where `ros2 run` looks, and where
     `node` must stay); the CLI also belongs on PATH after `source install/setup.bash`. colcon
     puts <prefix>/bin on PATH when it exists, so the CLI's wrapper (same interpreter line) is
     copied there. Only `zeroshot-calib`: never `node` (it would shadow Node.js)."""
+    for entry in console_scripts:
+        name, target = (part.strip() for part in entry.split('='))
+        module, function = target.split(':')
+        path = os.path.join(script_dir, name)
+        if os.path.isfile(path):
+            _direct_entry_script(path, module, function)
+    script = os.path.join(script_dir, 'zeroshot-calib')
+    libdir = os.path.normpath(script_dir)
+    if os.path.basename(libdir) == package_name and os.path.isfile(script):
+        bindir = os.path.join(os.path.dirname(os.path.dirname(libdir)), 'bin')
+        os.makedirs(bindir, exist_ok=True)
+        shutil.copy2(script, os.path.join(bindir, 'zeroshot-calib'))
+
+
+class install(_install):
+    """colcon's install (`colcon build`): see _finish_scripts."""
 
     def run(self):
         super().run()
-        for entry in console_scripts:
-            name, target = (part.strip() for part in entry.split('='))
-            module, function = target.split(':')
-            path = os.path.join(self.install_scripts, name)
-            if os.path.isfile(path):
-                _direct_entry_script(path, module, function)
-        script = os.path.join(self.install_scripts, 'zeroshot-calib')
-        if os.path.basename(os.path.normpath(self.install_scripts)) == package_name and os.path.isfile(script):
-            bindir = os.path.join(self.install_base, 'bin')
-            os.makedirs(bindir, exist_ok=True)
-            shutil.copy2(script, os.path.join(bindir, 'zeroshot-calib'))
+        _finish_scripts(self.install_scripts)
+
+
+class develop(_develop):
+    """colcon's `colcon build --symlink-install` (setup.py develop, scripts in setup.cfg's
+    [develop] script_dir): the same as install, see _finish_scripts."""
+
+    def run(self):
+        super().run()
+        if not self.uninstall:
+            _finish_scripts(self.script_dir)
 
 
 console_scripts = ['zeroshot-calib = zeroshot_calib_ros.cli:main']
@@ -106,8 +123,9 @@ if _colcon_style_install(sys.argv):
 config_files = sorted(
     glob(os.path.join('config', '*.yaml'))
     + glob(os.path.join('config', '*.yml'))
-    + glob(os.path.join('config', '*.xml'))
-    + glob(os.path.join('config', '*.launch.py')))
+    + glob(os.path.join('config', '*.xml')))
+# share/<package>/launch/, where bringups include them from (FindPackageShare + 'launch')
+launch_files = sorted(glob(os.path.join('launch', '*.launch.py')))
 
 setup(
     name=package_name,
@@ -119,6 +137,7 @@ setup(
             ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', config_files),
+        ('share/' + package_name + '/launch', launch_files),
     ],
     install_requires=[
         'numpy',
@@ -138,5 +157,5 @@ setup(
     entry_points={
         'console_scripts': console_scripts,
     },
-    cmdclass={'install': install},
+    cmdclass={'install': install, 'develop': develop},
 )

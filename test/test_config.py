@@ -13,7 +13,7 @@ from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / 'config'
-LAUNCH_FILE = CONFIG / 'zeroshot_calib.launch.py'
+LAUNCH_FILE = REPO / 'launch' / 'zeroshot_calib.launch.py'
 PARAMS_FILES = sorted(CONFIG.glob('*.yaml'))
 PARAMS_FILE_CAMERAS = {
     # file: (its row of the paper's Table 2, frame_id, distortion_model and its number of coefficients)
@@ -121,15 +121,18 @@ def evaluate_launch_file(monkeypatch, launch_arguments=(), share=None):
     context = {**declared, **dict(launch_arguments)}
 
     def value(v):
-        if isinstance(v, _LaunchConfiguration):
+        if isinstance(v, _LaunchConfiguration):  # a declared default may itself be a LaunchConfiguration
             assert v.variable_name in context, f'LaunchConfiguration {v.variable_name!r} is not declared'
-            return context[v.variable_name]
+            return value(context[v.variable_name])
+        if isinstance(v, list):
+            return [value(item) for item in v]
         return v
 
     nodes = [e for e in description.entities if isinstance(e, _Node)]
     assert len(nodes) == 1, description.entities
     arguments = {k: value(v) for k, v in nodes[0].arguments.items()
                  if k not in ('parameters', 'remappings')}
+    arguments.setdefault('ros_arguments', None)
     if arguments['namespace'] is not None and not arguments['namespace'].startswith('/'):
         arguments['namespace'] = '/' + arguments['namespace']
     arguments['parameters'] = [
@@ -138,6 +141,10 @@ def evaluate_launch_file(monkeypatch, launch_arguments=(), share=None):
     arguments['remappings'] = [(value(a), value(b)) for a, b in nodes[0].arguments['remappings'] or []]
     arguments['declared'] = declared
     return arguments
+
+
+LAUNCH_ARGUMENTS = {'params_file', 'namespace', 'node_name', 'image', 'image_topic', 'camera_info_topic',
+                    'image_rect_topic', 'set_camera_info_service', 'rectify', 'log_level', 'use_sim_time'}
 
 
 def test_launch_file(monkeypatch):
@@ -150,17 +157,19 @@ def test_launch_file(monkeypatch):
         spec.loader.exec_module(module)
         description = module.generate_launch_description()
         names = {getattr(e, 'name', None) for e in description.entities}
-        assert {'params_file', 'namespace', 'image', 'rectify'} <= names
+        assert LAUNCH_ARGUMENTS <= names
         return
     node = evaluate_launch_file(monkeypatch, share=REPO)
-    assert set(node['declared']) == {'params_file', 'namespace', 'image', 'rectify'}
+    assert set(node['declared']) == LAUNCH_ARGUMENTS
     assert (node['package'], node['executable'], node['name']) == ('zeroshot_calib_ros', 'node', 'zeroshot_calib')
     assert node['namespace'] == '/camera'
-    assert node['parameters'] == [str(REPO / 'config' / 'hero9_w1.yaml'), {'rectify': False}]
-    assert node['remappings'] == [('image_raw', 'image_raw')]
+    assert node['parameters'] == [str(REPO / 'config' / 'hero9_w1.yaml'), {'rectify': False, 'use_sim_time': False}]
+    assert node['remappings'] == [('image_raw', 'image_raw'), ('camera_info', 'camera_info'),
+                                  ('image_rect', 'image_rect'), ('set_camera_info', 'set_camera_info')]
+    assert node['ros_arguments'] == ['--log-level', 'info']
     c922 = str(CONFIG / 'c922.yaml')
     node = evaluate_launch_file(monkeypatch, {'params_file': c922, 'namespace': 'front', 'image': '/front/image_raw',
                                               'rectify': 'true'}, share=REPO)
     assert node['namespace'] == '/front'
-    assert node['parameters'] == [c922, {'rectify': True}]
-    assert node['remappings'] == [('image_raw', '/front/image_raw')]
+    assert node['parameters'] == [c922, {'rectify': True, 'use_sim_time': False}]
+    assert node['remappings'][0] == ('image_raw', '/front/image_raw')  # `image`, the older name of image_topic

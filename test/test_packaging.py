@@ -7,6 +7,7 @@ installed into lib/zeroshot_calib_ros/ and never into a bin/ directory (where
 it would shadow Node.js).
 """
 
+import ast
 import configparser
 import json
 import os
@@ -29,6 +30,13 @@ EXEC_DEPENDS = {
     'python3-opencv', 'python3-yaml',
 }
 TEST_DEPENDS = {'python3-pytest'}
+# the rosdep key (package.xml) that provides each top-level module an installed file may import
+ROSDEP_KEY_OF_MODULE = {
+    'rclpy': 'rclpy', 'rcl_interfaces': 'rcl_interfaces', 'sensor_msgs': 'sensor_msgs',
+    'diagnostic_msgs': 'diagnostic_msgs', 'numpy': 'python3-numpy', 'scipy': 'python3-scipy',
+    'cv2': 'python3-opencv', 'yaml': 'python3-yaml', 'launch': 'launch', 'launch_ros': 'launch_ros',
+    'ament_index_python': 'ament_index_python',
+}
 
 
 @pytest.fixture(scope='module')
@@ -39,7 +47,7 @@ def source_copy(tmp_path_factory):
     for name in ('setup.py', 'setup.cfg', 'package.xml'):
         shutil.copy2(ROOT / name, dst / name)
     ignore = shutil.ignore_patterns('__pycache__', '*.pyc', '*.egg-info')
-    for name in ('resource', 'config', PKG):
+    for name in ('resource', 'config', 'launch', PKG):
         if (ROOT / name).is_dir():
             shutil.copytree(ROOT / name, dst / name, ignore=ignore)
     return dst
@@ -173,3 +181,81 @@ def test_install_tree_is_byte_compiled():
         if int.from_bytes(header[8:12], 'little') != int(source.stat().st_mtime) & 0xFFFFFFFF:
             stale.append(f'{source.name}: .pyc older than the source')
     assert not stale, stale
+
+
+def _top_level_imports(path):
+    """The top-level modules a Python file imports (absolute imports only; every import
+    statement, also those inside functions and try blocks)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name.split('.')[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.add(node.module.split('.')[0])
+    return found
+
+
+def test_package_xml_exec_depends_cover_every_import_of_the_install_tree():
+    """`rosdep install --from-paths src` installs package.xml's exec_depends, and nothing else:
+    every module that an installed .py file (the package, the launch files) imports must come
+    from the standard library, the package itself or an exec_depend; and an installed launch
+    file needs `ros2launch` for `ros2 launch` itself."""
+    _require_install_tree()
+    exec_depends = {e.text for e in ET.parse(ROOT / 'package.xml').getroot().findall('exec_depend')}
+    files = sorted(INSTALL.rglob('*.py'))
+    launch_files = [f for f in files if f.name.endswith('.launch.py')]
+    assert launch_files, 'no launch file in the install tree'
+    missing = {}
+    for path in files:
+        for module in sorted(_top_level_imports(path) - set(sys.stdlib_module_names) - {PKG}):
+            assert module in ROSDEP_KEY_OF_MODULE, (
+                f'{path.relative_to(INSTALL)} imports {module}: add its rosdep key to ROSDEP_KEY_OF_MODULE '
+                'and to package.xml')
+            if ROSDEP_KEY_OF_MODULE[module] not in exec_depends:
+                missing.setdefault(ROSDEP_KEY_OF_MODULE[module], str(path.relative_to(INSTALL)))
+    if 'ros2launch' not in exec_depends:
+        missing['ros2launch'] = f'`ros2 launch` of {launch_files[0].name}'
+    assert not missing, f'package.xml lacks <exec_depend>s (key: needed by): {missing}'
+
+
+def test_launch_files_are_installed_under_share_launch():
+    """Robot bringups include a package's launch files as
+    ``PathJoinSubstitution([FindPackageShare('zeroshot_calib_ros'), 'launch', 'zeroshot_calib.launch.py'])``:
+    the install tree has it at share/zeroshot_calib_ros/launch/, the repository keeps it in launch/,
+    and none is kept beside the params files in config/ (an install tree built before
+    the move keeps its stale copy there: `ros2 launch` then finds two; remove install/ once)."""
+    _require_install_tree()
+    share = INSTALL / 'share' / PKG
+    assert (share / 'launch' / 'zeroshot_calib.launch.py').is_file(), sorted(
+        str(p.relative_to(share)) for p in share.rglob('*.launch.py'))
+    assert (ROOT / 'launch' / 'zeroshot_calib.launch.py').is_file()
+    assert not list((ROOT / 'config').glob('*.launch.py'))
+
+
+def test_symlink_install_puts_the_cli_on_path(source_copy, tmp_path):
+    """`colcon build --symlink-install` (setup.py develop): after `source install/setup.bash`
+    the CLI runs from install/zeroshot_calib_ros/bin, `ros2 run` finds `node` in
+    lib/zeroshot_calib_ros/, and `node` is on no PATH."""
+    venv_bin = ROOT / '.venv' / 'bin'
+    if not (venv_bin / 'colcon').exists():
+        pytest.skip('colcon is not installed in .venv (make venv)')
+    install = tmp_path / 'install'
+    env = dict(os.environ, PATH=f'{venv_bin}:{os.environ["PATH"]}', VIRTUAL_ENV=str(ROOT / '.venv'))
+    env.pop('PYTHONDONTWRITEBYTECODE', None)
+    built = subprocess.run(['colcon', '--log-base', str(tmp_path / 'log'), 'build', '--symlink-install',
+                            '--paths', str(source_copy), '--build-base', str(tmp_path / 'build'),
+                            '--install-base', str(install), '--event-handlers', 'console_direct-'],
+                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    log = tmp_path / 'log' / 'latest_build' / PKG / 'stdout_stderr.log'
+    assert built.returncode == 0, built.stdout[-2000:] + built.stderr[-2000:] + (log.read_text() if log.exists() else '')
+    assert os.access(install / PKG / 'lib' / PKG / 'node', os.X_OK)
+    clean = {'HOME': os.environ.get('HOME', '/root'), 'PATH': '/usr/local/bin:/usr/bin:/bin'}
+    done = subprocess.run(['bash', '-c', f'source {install}/setup.bash && command -v zeroshot-calib && '
+                           '{ command -v node | grep -c zeroshot || true; } && '
+                           'zeroshot-calib solve --preset gopro_hero9_wide --json'],
+                          env=clean, capture_output=True, text=True, timeout=120, cwd='/')
+    assert done.returncode == 0, done.stdout + done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0] == str(install / PKG / 'bin' / 'zeroshot-calib')
+    assert lines[1] == '0'  # `node` stays off PATH
+    assert abs(json.loads(lines[2])['f'] - 876.0) < 0.1  # the paper's Table 2, Hero9(W1)

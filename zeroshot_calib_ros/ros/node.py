@@ -76,6 +76,7 @@ NODE_NAME = 'zeroshot_calib'
 IMAGE_IDLE_SECONDS = 1.0
 """Timer-driven CameraInfo resumes when no image arrived for this long."""
 WARN_THROTTLE_SECONDS = 5.0
+_WARNED_KEYS_KEPT = 64  # throttled warnings remembered (one key per frame size without a calibration)
 OTHER_SIZE_IDLE_SECONDS = 10.0
 """Maps of a frame size other than the configured one are released after this long unused."""
 SET_CAMERA_INFO_WAIT_SECONDS = 3.0
@@ -129,6 +130,7 @@ class ZeroShotCalibNode(Node):
             self._log('warning', text)
         self._stats = Counter()
         self._warned_at = {}
+        self._uncalibrated = None  # (size, why) while frames come that no calibration describes
         self._last_image_time = None  # time.monotonic() of the last frame
         # Until an image publisher is seen: reliable CameraInfo (what late joiners and the
         # default subscriber QoS want), best-effort image_raw (accepts either kind of publisher).
@@ -447,10 +449,18 @@ class ZeroShotCalibNode(Node):
                 if (width, height) != binned_roi_size(calibration):
                     raise FrameSkipped('aspect', f'image {width}x{height} is not the {"x".join(map(str, binned_roi_size(calibration)))} '
                                        'that the calibration\'s binning and roi describe')
-                return calibration
-            return active.calibration_for(width, height)
+            else:
+                calibration = active.calibration_for(width, height)
+            self._uncalibrated = None
+            return calibration
         except FrameSkipped as exc:
-            self._skip(exc)
+            if exc.reason == 'aspect':  # said for each size (throttled), and an ERROR in /diagnostics
+                self._uncalibrated = ((width, height), str(exc))
+                if len(self._warned_at) > _WARNED_KEYS_KEPT:  # a stream of ever new sizes
+                    self._warned_at.clear()
+                self._skip(exc, key=f'aspect {width}x{height}')
+            else:
+                self._skip(exc)
         except Exception as exc:  # never let a frame take the node down
             self._skip(FrameSkipped('error', f'cannot calibrate frame: {exc}'))
         return None
@@ -540,9 +550,9 @@ class ZeroShotCalibNode(Node):
         self._rect_pub.publish(rect)
         self._stats['frames_rectified'] += 1
 
-    def _skip(self, exc: FrameSkipped):
+    def _skip(self, exc: FrameSkipped, key: Optional[str] = None):
         self._stats[f'frames_skipped_{exc.reason}'] += 1
-        if self._due(exc.reason):
+        if self._due(key or exc.reason):
             self.get_logger().warning(f'frame skipped ({exc.reason}): {exc} '
                                       f'[{self._stats[f"frames_skipped_{exc.reason}"]} so far]')
 
@@ -598,6 +608,12 @@ class ZeroShotCalibNode(Node):
                   **self._stats}
         if values['refine_state'] == 'failed':
             status.level = DiagnosticStatus.WARN
+        if self._uncalibrated is not None and not self._camera_exists():
+            self._uncalibrated = None  # the camera has stopped
+        if self._uncalibrated is not None:
+            (width, height), why = self._uncalibrated
+            status.level = DiagnosticStatus.ERROR
+            status.message = f'no CameraInfo for the {width}x{height} frames: {why}'
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()

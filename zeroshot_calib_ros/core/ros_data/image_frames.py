@@ -291,7 +291,9 @@ class ActiveCalibration:
             raise FrameSkipped('malformed', f'image size {width}x{height} is empty')
         if width * base.height != height * base.width:
             raise FrameSkipped('aspect', f'image {width}x{height} does not have the aspect ratio of '
-                               f'the calibration ({base.width}x{base.height})')
+                               f'the calibration ({base.width}x{base.height}), so it gets no CameraInfo: set '
+                               'width, height and hfov, vfov or dfov (or preset) of this camera mode, or give a '
+                               'calibration of it (camera_info_url, set_camera_info)')
         calibration = base.scaled(width, height)
         with self._lock:
             calibrations = dict(self._calibrations)  # readers without the lock see old or new
