@@ -59,6 +59,15 @@ tolerances or the FOVs' chi^2 exceeds its ``FOV_AGREEMENT`` quantile, with a war
 them: the corners contradict the spec sheet (a wrong FOV, a
 crop, another lens) and the MAP is a compromise between them that should not be trusted
 silently.
+
+5. The contradiction test (``spec_contradiction``): with one view the FOV term dominates and the
+   MAP meets even a spec of another lens (60 x 40 degrees on the shared set's 180-degree lens: the
+   FOVs within 2 tolerances, the corners fitted by a bent board and a wild k1..k4), so the FOV
+   residuals at the MAP cannot show it. The likelihood ratio of the FOV term, at a real spec
+   sheet's tolerance (``CONTRADICTION_TOLERANCE_DEG``), can; when it exceeds its chi^2 quantile
+   (``CONTRADICTION_P``), or a FOV of the MAP is more than ``refine.MAX_FOV_SIGMAS`` such
+   tolerances off, the result is never adopted: ``accepted`` False, ``spec_agrees`` False, the
+   zero-shot camera without an error bar (it holds only if the spec does), and a warning.
 """
 from __future__ import annotations
 
