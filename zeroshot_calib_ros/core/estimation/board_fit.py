@@ -120,7 +120,7 @@ CONTRADICTION_P = 1e-6
 ``CONTRADICTION_TOLERANCE_DEG``) exceeds the chi^2 quantile 1 - CONTRADICTION_P (one degree of
 freedom per FOV): 27.6 for two FOVs. On the shared real set (one view each, the authors' FOVs)
 the ratio was at most 16 over the 24 views; a 60 x 40 degree spec on its 180 x 104 degree lens gave
-37 to 28,000 on 10 of the first 16 views (0.2 to 15 on the other 6: one view may not tell, see
+37 to 28,000 on 10 of the first 16 views (0.2 to 13 on the other 6: one view may not tell, see
 the one-view note), and far more from several views. The corner likelihood is over-confident
 (model misfit beside white noise), hence the wide tolerance and the small P."""
 METHOD_LABEL = 'MAP (corners + spec FOVs + priors)'
