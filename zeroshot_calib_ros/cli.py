@@ -40,7 +40,7 @@ from .core.ros_data.calibration_file import (DISTORTION_MODELS, FORMATS, Calibra
                                     MAX_FILE_BYTES, json_safe, solution_summary, summary_text)
 from .core.file_input import MAX_IMAGE_PIXELS, InputFileError, read_capped, read_image
 from .core.lens.models import RadialCamera, camera_from_calibration
-from .core.checkerboard.corners import CornerSet, detect_corners, parse_board
+from .core.checkerboard.corners import SQUARE_ALLOWED, CornerSet, detect_corners, parse_board, square_ok
 from .core.checkerboard.evaluation import evaluate, evaluation_to_dict, format_tables, reprojection_error
 from .core.estimation.terms import FOV_TOLERANCE_DEG
 from .core.lens.fitting import DISTORTION_FITS, FIT_WARNING_PX
@@ -716,6 +716,9 @@ def _corner_set(args, single=None):
     """The CornerSet of the images / --corners file; writes --save-corners."""
     if args.corners and args.images:
         raise CliError('give chessboard images or --corners FILE, not both')
+    if not square_ok(args.square):
+        raise CliError(f'--square {args.square:g} is invalid: allowed: {SQUARE_ALLOWED}, the side of one '
+                       'board square')
     if args.corners:
         corners = CornerSet.load(args.corners)
     else:
@@ -777,6 +780,8 @@ def _cmd_calibrate(args):
     solution = as_solution(result, spec)
     calibration, fit = CameraCalibration.from_solution(solution, args.distortion_model, args.balance,
                                                        args.fov_scale, args.camera_name)
+    if args.distortion_model == 'plumb_bob':
+        _check_plumb_bob(solution.camera, fit.max_error_px, 'the calibrated camera')
     summary = solution_summary(solution, calibration, fit)
     summary['warning'] = _fit_warnings(solution, calibration, fit)
     used = [corners.names[v] for v in result.views]
@@ -827,6 +832,32 @@ class _RadialView(RadialCamera):
         return self.kb.theta_from_theta_d(theta_d)
 
 
+def _edge_angle_deg(camera) -> float:
+    """Largest off-axis angle (degrees) of the rays of the image border (nan: a border pixel with
+    no ray)."""
+    w, h = camera.width, camera.height
+    t = np.linspace(0.0, 1.0, 33)
+    border = np.concatenate([np.c_[t * w, 0 * t], np.c_[t * w, 0 * t + h], np.c_[0 * t, t * h], np.c_[0 * t + w, t * h]])
+    rays = camera.unproject(border)
+    with np.errstate(invalid='ignore'):
+        angles = np.degrees(np.arctan2(np.linalg.norm(rays[:, :2], axis=-1), rays[:, 2]))
+    return float(np.max(angles)) if np.all(np.isfinite(angles)) else math.nan
+
+
+def _check_plumb_bob(camera, fit_error, what):
+    """CliError when --distortion-model plumb_bob cannot represent ``camera``: plumb_bob projects
+    through a pinhole, so a lens that sees 90 degrees or more off-axis inside the image (a FOV of
+    180 or more), or a fit that gives no finite error, would be written as a wrong D."""
+    angle = _edge_angle_deg(camera)
+    if math.isfinite(angle) and angle < 90.0 and math.isfinite(fit_error):
+        return
+    seen = (f'sees {angle:.1f} degrees off-axis at the image edge' if math.isfinite(angle)
+            else 'has image pixels without a ray')
+    raise CliError(f'--distortion-model plumb_bob cannot represent {what}: it {seen}, and plumb_bob projects '
+                   'through a pinhole (allowed: lenses below 90 degrees off-axis, a FOV below 180): use '
+                   '--distortion-model equidistant')
+
+
 def _calibrate_with_spec(args, corners, views, spec):
     """`calibrate` with the spec as evidence: the MAP over corners, FOVs and priors
     (core/estimation/board_fit.py); the camera is Kannala-Brandt (ROS equidistant, exact)."""
@@ -841,6 +872,7 @@ def _calibrate_with_spec(args, corners, views, spec):
     else:
         distortion = DISTORTION_FITS[args.distortion_model](_RadialView(camera))
         D, fit_error = distortion.D, distortion.max_error_px
+        _check_plumb_bob(camera, fit_error, 'the calibrated camera' if fit.accepted else 'the camera written')
         fit_warnings = [] if fit_error <= FIT_WARNING_PX else [
             f'the ROS {args.distortion_model} fit of the calibrated camera is off by up to {fit_error:.3g} px in '
             f'the image (fit error; warning above {FIT_WARNING_PX:g} px), so tools that rectify with its D '
@@ -858,7 +890,8 @@ def _calibrate_with_spec(args, corners, views, spec):
         'board': {'cols': corners.board.cols, 'rows': corners.board.rows, 'square': corners.board.square},
         'rms_px': fit.rms_px, 'notes': list(fit.notes),
         'rejected_corners': [r.to_dict() for r in fit.rejected],
-        'duplicate_views': [], 'uncertainty_px': fit.uncertainty_px, 'uncertainty': fit.uncertainty.reason,
+        'duplicate_views': [{'image': a, 'same_as': b, 'rms_difference_px': d} for a, b, d in fit.duplicates],
+        'uncertainty_px': fit.uncertainty_px, 'uncertainty': fit.uncertainty.reason,
         'fit': fit.summary(),
     })
     if views is not None and len(corners) > 1:

@@ -306,9 +306,10 @@ def _principal_point_outside(camera) -> str:
 
 def _checked(corners: CornerSet, views) -> tuple:
     """(views, CornerReport): the views after _check_views and check_corner_set (which raises
-    CornersError on a wrong board or a degenerate view)."""
+    CornersError on a wrong board or a degenerate view), duplicate views left out (they count once)."""
     views = _check_views(corners, views)
-    return views, check_corner_set(corners, views)
+    report = check_corner_set(corners, views)
+    return report.distinct(views), report
 
 
 def _check_views(corners: CornerSet, views) -> tuple:

@@ -71,6 +71,12 @@ def _finite_number(value) -> bool:
         return False
 
 
+SQUARE_RANGE_M = (1e-5, 10.0)
+"""Allowed square side (metres): 10 micrometres (a microscope target) to 10 m. Outside, the value
+is a mistake (108 for 108 mm, 1e300), and poses, the board's sag and the fit's steps would be
+computed from it."""
+
+
 @dataclass(frozen=True)
 class Board:
     """A chessboard: ``cols`` x ``rows`` inner corners, squares ``square`` metres wide."""
@@ -90,9 +96,8 @@ class Board:
             raise CornersError(f'board = {self.cols}x{self.rows} is invalid: {self.cols * self.rows} '
                                f'inner corners, allowed: at least {MIN_CORNERS_PER_IMAGE}')
         if isinstance(self.square, bool) or not isinstance(self.square, (int, float)) \
-                or not _finite_number(self.square) or self.square <= 0:
-            raise CornersError(f'board square = {_clip(self.square)} is invalid: allowed: a length > 0 '
-                               '(metres)')
+                or not square_ok(self.square):
+            raise CornersError(f'board square = {_clip(self.square)} is invalid: allowed: {SQUARE_ALLOWED}')
 
     @property
     def size(self) -> str:
@@ -109,6 +114,14 @@ class Board:
         pts[:, 0] = c.ravel() * self.square
         pts[:, 1] = r.ravel() * self.square
         return pts
+
+
+SQUARE_ALLOWED = f'a length from {SQUARE_RANGE_M[0]:g} to {SQUARE_RANGE_M[1]:g} (metres)'
+
+
+def square_ok(value) -> bool:
+    """A finite square side within SQUARE_RANGE_M (metres)."""
+    return _finite_number(value) and SQUARE_RANGE_M[0] <= float(value) <= SQUARE_RANGE_M[1]
 
 
 def parse_board(text: str, square: float = 0.108) -> Board:
@@ -373,11 +386,18 @@ class CornerReport:
 
     duplicates: List[tuple] = field(default_factory=list)
     """(name, earlier name, RMS difference px) of views with (nearly) the same corners."""
+    positions: List[int] = field(default_factory=list)
+    """Positions (in the views checked) of the duplicates: the views a fit leaves out."""
 
     @property
     def notes(self) -> List[str]:
         return [f'duplicate view: {os.path.basename(a)} has the corners of {os.path.basename(b)} '
-                f'(RMS difference {d:.3f} px): it counts twice' for a, b, d in self.duplicates]
+                f'(RMS difference {d:.3f} px): it counts once (left out)' for a, b, d in self.duplicates]
+
+    def distinct(self, views: Sequence[int]) -> tuple:
+        """``views`` (those checked) without the duplicates: a copy of a view adds no evidence, so
+        counting it again would shrink the error bar for nothing."""
+        return tuple(v for i, v in enumerate(views) if i not in set(self.positions))
 
     def to_list(self) -> List[dict]:
         return [{'image': a, 'same_as': b, 'rms_difference_px': d} for a, b, d in self.duplicates]
@@ -424,8 +444,9 @@ def _degenerate(name: str, points: np.ndarray, board: Board) -> str:
     return ''
 
 
-def _duplicates(names, corners: np.ndarray) -> List[tuple]:
-    out = []
+def _duplicates(names, corners: np.ndarray) -> tuple:
+    """([(name, earlier name, RMS difference px)], [position of each duplicate])."""
+    out, positions = [], []
     n = len(names)
     for i in range(1, n):
         same = np.sqrt(np.mean(np.sum((corners[:i] - corners[i]) ** 2, axis=-1), axis=-1))
@@ -434,7 +455,8 @@ def _duplicates(names, corners: np.ndarray) -> List[tuple]:
         j = int(np.argmin(d))
         if d[j] < DUPLICATE_RMS_PX:
             out.append((names[i], names[j], float(d[j])))
-    return out
+            positions.append(i)
+    return out, positions
 
 
 def check_corner_set(corners: CornerSet, views: Optional[Sequence[int]] = None) -> CornerReport:
@@ -452,7 +474,8 @@ def check_corner_set(corners: CornerSet, views: Optional[Sequence[int]] = None) 
       out of order, or many outliers), named.
 
     Duplicate views (corners within DUPLICATE_RMS_PX RMS of an earlier view's, in the same or the
-    reversed order) are not an error: the report lists them with both names."""
+    reversed order) are not an error: the report lists them with both names, and the fits leave
+    them out (``CornerReport.distinct``)."""
     views = list(range(len(corners))) if views is None else [int(v) for v in views]
     board = corners.board
     pts = corners.corners[views]
@@ -486,4 +509,4 @@ def check_corner_set(corners: CornerSet, views: Optional[Sequence[int]] = None) 
             f'image {short[i]}: its corners do not form a {board.size} grid ({bad} of {cells} '
             f'cells folded or flat; allowed: at most {100 * GRID_MAX_BAD_FRACTION:g} %): wrong board '
             'size or corners out of row-major order')
-    return CornerReport(_duplicates(names, pts))
+    return CornerReport(*_duplicates(names, pts))

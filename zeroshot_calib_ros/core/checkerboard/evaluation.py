@@ -184,7 +184,11 @@ def _full_row(key, corners, spec) -> FullRow:
     except SpecError as exc:
         row.failure = str(exc)
         return row
-    initial = row.result.extrinsics() if row.result is not None else None
+    initial = None
+    if row.result is not None:  # one start pose per image; duplicate views were left out of the fit
+        initial = [None] * len(corners)
+        for view, pose in zip(row.result.views, row.result.extrinsics() or []):
+            initial[view] = pose
     row.error = reprojection_error(row.camera, corners, initial=initial)
     return row
 

@@ -59,9 +59,19 @@ tolerances or the FOVs' chi^2 exceeds its ``FOV_AGREEMENT`` quantile, with a war
 them: the corners contradict the spec sheet (a wrong FOV, a
 crop, another lens) and the MAP is a compromise between them that should not be trusted
 silently.
+
+5. The contradiction test (``spec_contradiction``): with one view the FOV term dominates and the
+   MAP meets even a spec of another lens (60 x 40 degrees on the shared set's 180-degree lens: the
+   FOVs within 2 tolerances, the corners fitted by a bent board and a wild k1..k4), so the FOV
+   residuals at the MAP cannot show it. The likelihood ratio of the FOV term, at a real spec
+   sheet's tolerance (``CONTRADICTION_TOLERANCE_DEG``), can; when it exceeds its chi^2 quantile
+   (``CONTRADICTION_P``), or a FOV of the MAP is more than ``refine.MAX_FOV_SIGMAS`` such
+   tolerances off, the result is never adopted: ``accepted`` False, ``spec_agrees`` False, the
+   zero-shot camera without an error bar (it holds only if the spec does), and a warning.
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -100,6 +110,19 @@ fit without the FOV term), though it catches a wrong FOV from fewer views (20 de
 from 2 views with bent boards, ``BOARD_BEND``): on the shared set, whose spec is exact, it flagged 8
 of 24 single-image runs at 1 degree, against 0 for this rule; the corners' likelihood is too
 sure of itself (model misfit beside white noise) for its chi^2 to be calibrated."""
+CONTRADICTION_TOLERANCE_DEG = 5.0
+"""The contradiction test (``spec_contradiction``) takes the spec's FOVs as good to this (1 sigma,
+degrees; or to --fov-tolerance when that is wider): what a real spec sheet meets (rounding, unit
+spread, a FOV quoted for another mode), so that the test refuses a spec of another lens, not a
+spec a few degrees off."""
+CONTRADICTION_P = 1e-6
+"""The corners contradict the spec when the likelihood ratio of the FOV term (at
+``CONTRADICTION_TOLERANCE_DEG``) exceeds the chi^2 quantile 1 - CONTRADICTION_P (one degree of
+freedom per FOV): 27.6 for two FOVs. On the shared real set (one view each, the authors' FOVs)
+the ratio was at most 16 over the 24 views; a 60 x 40 degree spec on its 180 x 104 degree lens gave
+37 to 28,000 on 10 of the first 16 views (0.2 to 13 on the other 6: one view may not tell, see
+the one-view note), and far more from several views. The corner likelihood is over-confident
+(model misfit beside white noise), hence the wide tolerance and the small P."""
 METHOD_LABEL = 'MAP (corners + spec FOVs + priors)'
 GATE = True
 """Keep zero-shot unless the MAP is reliably better (module docstring, step 4)."""
@@ -167,6 +190,8 @@ class BoardFit:
     fov_residuals_deg: Dict[str, float]
     """The MAP's minus the given (degrees)."""
     spec_agrees: bool
+    """False when the corners contradict the spec (a FOV of the MAP beyond ``refine.MAX_FOV_SIGMAS``
+    tolerances, their chi^2 beyond ``FOV_AGREEMENT``, or ``spec_contradiction``): then never adopted."""
     zero_shot_camera: KannalaBrandtCamera
     zero_shot_uncertainty_px: Optional[float]
     rvecs: np.ndarray = field(repr=False)
@@ -190,6 +215,9 @@ class BoardFit:
     board_sag_m: List[float] = field(default_factory=list)
     """Per view, how far its board was from flat under the MAP (``CornerTerm.sag``, metres; 0
     without ``BOARD_BEND``)."""
+    duplicates: List[tuple] = field(default_factory=list)
+    """(name, earlier name, RMS difference px) of the views left out as copies of another
+    (``corners.CornerReport``)."""
 
     def extrinsics(self):
         return list(zip(self.rvecs, self.tvecs))
@@ -292,6 +320,23 @@ def zero_shot_better(fit: 'BoardFit', floor_px: float = SYSTEMATIC_PX, margin_px
                                        after_zoom=after_zoom)
 
 
+def spec_contradiction(problem: Problem, x, fov: FovTerm, tolerance_deg: float, max_nfev: int = 60):
+    """(likelihood ratio, threshold) of the spec's FOVs against the corners and priors: twice the
+    least cost of ``problem`` (the MAP's terms) with the FOV term at ``tolerance_deg`` less the
+    least cost without it, both solved from ``x`` (the MAP); a poorer minimum of the second only
+    lowers the ratio (the test errs towards agreeing). The threshold: chi^2 quantile
+    1 - CONTRADICTION_P with one degree per FOV."""
+    others = [t for t in problem.terms if t is not fov]
+    with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
+        free = Problem(problem.layout, others).solve(x, max_nfev=max_nfev)
+        wide = copy.copy(fov)
+        wide.sigma = float(tolerance_deg)
+        held = Problem(problem.layout, others + [wide]).solve(x, max_nfev=max_nfev)
+    ratio = 2.0 * (held.cost - free.cost)
+    ratio = max(ratio, 0.0) if math.isfinite(ratio) else math.inf
+    return ratio, float(chi2_distribution.ppf(1.0 - CONTRADICTION_P, len(fov.keys)))
+
+
 def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int]] = None,
               fov_tolerance_deg: float = FOV_TOLERANCE_DEG, orders=range(KB_TERMS + 1),
               max_nfev: int = 60, shape_sigma: float = SHAPE_SIGMA) -> BoardFit:
@@ -307,6 +352,7 @@ def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int
     if bad:
         raise CalibrationError(f'image index {bad[0]} is invalid: allowed: 0 to {len(corners) - 1}')
     report = check_corner_set(corners, views)
+    views = report.distinct(views)  # a copy of a view adds no evidence: it counts once
     W, H = corners.width, corners.height
     if (W, H) != (spec.width, spec.height):
         raise CalibrationError(f'the spec is {spec.width}x{spec.height} but the images are {W}x{H}')
@@ -367,7 +413,25 @@ def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int
     agrees = bool(max(abs(v) for v in z.values()) <= MAX_FOV_SIGMAS
                   and chi2 <= float(chi2_distribution.ppf(FOV_AGREEMENT, len(z))))
     warnings = [zs_u.warning] if zs_u.warning else []
-    if not agrees:
+    test_tolerance = max(fov_tolerance_deg, CONTRADICTION_TOLERANCE_DEG)
+    ratio, threshold = spec_contradiction(top_problem, top_sol.x, fov, test_tolerance, max_nfev)
+    far = max(abs(v) for v in residuals.values()) > MAX_FOV_SIGMAS * test_tolerance \
+        if all(math.isfinite(v) for v in residuals.values()) else True
+    # a MAP a few tolerances off a spec the corners pin (many views) is the corners' camera, adopted
+    # with the disagreement warning; one the spec cannot be at a real spec sheet's tolerance is not
+    contradicted = far or ratio > threshold
+    if contradicted:
+        agrees = False
+        listed = ', '.join(f'{k} {fitted[k]:.1f} against {fov.fovs[k]:g}' for k in fov.keys)
+        evidence = (f'the MAP camera, pulled towards the spec, still has {listed}, more than {MAX_FOV_SIGMAS:g} x '
+                    f'{test_tolerance:g} degrees off' if far else
+                    f'the MAP camera ({listed}) explains the corners only by bending the lens to the spec: a '
+                    f'likelihood ratio of {ratio:.3g} against the corners alone, above {threshold:.3g} (chi^2, P = '
+                    f'{CONTRADICTION_P:g})')
+        warnings.append(
+            f'the corners contradict the spec, even with its FOVs taken as good to {test_tolerance:g} degrees: '
+            f'{evidence}; not adopted: check the FOVs (a crop or another lens?), or calibrate without a spec')
+    elif not agrees:
         listed = ', '.join(f'{k} {fitted[k]:.1f} against {fov.fovs[k]:g} ({z[k]:+.1f} sigma)' for k in fov.keys)
         warnings.append(
             f'the corners disagree with the spec: the MAP camera has {listed} (tolerance {fov_tolerance_deg:g} '
@@ -394,12 +458,16 @@ def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int
     result = BoardFit(camera, u_px, u, views, rms, sigma, order, fov_tolerance_deg, dict(fov.fovs), fitted,
                       residuals, agrees, zs, zs_u_px, poses[:, :3].copy(), poses[:, 3:].copy(), rejected_list,
                       warnings, notes, int(used.sum()), evaluations, fitted_camera=camera, fitted_uncertainty_px=u_px,
-                      gate=(top_problem, top_problem.layout.x_from(camera)), board_sag_m=[float(v) for v in sag])
+                      gate=(top_problem, top_problem.layout.x_from(camera)), board_sag_m=[float(v) for v in sag],
+                      duplicates=list(report.duplicates))
     p, distance, spread = zero_shot_better(result)
     result.zero_shot_better_probability, result.zero_shot_distance_px, result.gate_uncertainty_px = p, distance, spread
     margin = ZERO_SHOT_MARGIN * W
     zoom = 'beside the zoom ' if GATE_AFTER_ZOOM else ''
-    if GATE and p is None:
+    if contradicted:
+        keep = ('not adopted: the corners contradict the spec (see the warning), so neither the MAP nor the '
+                'zero-shot camera of this spec can be trusted; the zero-shot camera is written without an error bar')
+    elif GATE and p is None:
         keep = 'zero-shot kept: the MAP has no covariance (the corners and priors do not determine it)'
     elif not GATE or p <= MAX_ZERO_SHOT_BETTER:
         keep = None
@@ -416,6 +484,9 @@ def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int
         result.camera = zs
         result.uncertainty_px = zs_u_px
         result.uncertainty = zs_u
+        if contradicted:  # zero-shot's error bar holds only if the spec does: none is claimed
+            result.uncertainty_px = None
+            result.uncertainty = Uncertainty(None, 'none: the corners contradict the spec this camera comes from')
         poses, _, result.rms_px, _ = _corners_at(term, zs)
         result.rvecs, result.tvecs = poses[:, :3].copy(), poses[:, 3:].copy()
         result.notes.append(result.reason + (f'; the MAP (not used): order {order}, uncertainty {u_px:.3g} px'

@@ -1,0 +1,158 @@
+"""`zeroshot-calib calibrate` never gives a confident wrong answer: a spec the corners contradict is
+not adopted (nor called agreeing), duplicate views count once, the board's square size is checked,
+and a plumb_bob file is never written for a lens plumb_bob cannot represent.
+
+The real-data tests use ../shared/data/ros_fisheye_800x503 (a lens of about 180 x 104 degrees, f
+about 290-305 px; ZEROSHOT_SHARED_DATA may name another copy of ../shared/data) and skip, saying
+so, when it is missing."""
+import json
+import math
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from zeroshot_calib_ros.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get('ZEROSHOT_SHARED_DATA', REPO.parent / 'shared' / 'data')) / 'ros_fisheye_800x503'
+needs_data = pytest.mark.skipif(not (DATA / 'left-0000.png').is_file(),
+                                reason=f'the shared real data set is missing: {DATA}')
+RIGHT_SPEC = ['--hfov', '180.8', '--vfov', '103.5']
+"""The FOVs of the authors' calibration (ost.yaml read as Kannala-Brandt): 180.81 x 103.52 degrees."""
+
+
+def run_main(args, capsys):
+    try:
+        status = main(args)
+    except SystemExit as exc:
+        status = exc.code
+    captured = capsys.readouterr()
+    return status, captured.out, captured.err.strip().splitlines()
+
+
+def calibrate_json(capsys, *args):
+    status, out, err = run_main(['calibrate', *args, '--json'], capsys)
+    assert status == 0, err
+    return json.loads(out), err
+
+
+def spec_line(out):
+    return next(line for line in out.splitlines() if line.startswith('spec'))
+
+
+# -- 1 and 2: a spec the corners contradict ----------------------------------------------------------
+
+@needs_data
+def test_the_right_spec_on_one_real_view_is_adopted_and_agrees(capsys):
+    """The guard of the contradiction test: the authors' FOVs on left-0000 are adopted, agree, and
+    give f within 6 % of the authors' 290 px (one view)."""
+    record, err = calibrate_json(capsys, str(DATA / 'left-0000.png'), *RIGHT_SPEC)
+    assert record['accepted'] is True and record['fit']['spec_agrees'] is True
+    assert record['warning'] == [] and not any('contradict' in line for line in err)
+    assert record['f'] == pytest.approx(290.0, rel=0.06)
+    assert record['uncertainty_px'] is not None and 0 < record['uncertainty_px'] < 10
+
+
+@needs_data
+@pytest.mark.parametrize('spec', [['--hfov', '60', '--vfov', '40'], ['--hfov', '180.8', '--vfov', '10']],
+                         ids=['60x40', '180.8x10'])
+def test_a_spec_the_corners_contradict_is_never_accepted_nor_said_to_agree(tmp_path, capsys, spec):
+    """A 60 x 40 degree spec (or 180.8 x 10) on one view of the 180-degree lens: not accepted, the
+    JSON's warning and the text say the corners contradict the spec, no error bar is claimed for
+    the camera written (the spec it comes from is contradicted), exit 0 as any refused result
+    (`accepted: false`, the zero-shot camera written, as the gate's refusals)."""
+    out_yaml = tmp_path / 'camera.yaml'
+    record, err = calibrate_json(capsys, str(DATA / 'left-0000.png'), *spec, '--yaml', str(out_yaml))
+    assert record['accepted'] is False
+    assert record['fit']['spec_agrees'] is False
+    assert any('contradict' in w for w in record['warning']), record['warning']
+    assert any('contradict' in line for line in err)
+    assert 'contradict' in record['reason']
+    assert record['uncertainty_px'] is None
+    assert out_yaml.is_file()
+    status, out, _ = run_main(['calibrate', str(DATA / 'left-0000.png'), *spec], capsys)
+    assert status == 0
+    assert 'agrees' not in spec_line(out) and 'DISAGREES' in spec_line(out)
+    assert next(x for x in out.splitlines() if x.startswith('method')).startswith('method    zero-shot kept')
+    assert 'error bar -' in out
+
+
+# -- 3: duplicate views ------------------------------------------------------------------------------
+
+@needs_data
+def test_copies_of_one_view_count_once_and_do_not_shrink_the_error_bar(tmp_path, capsys):
+    """Five copies of left-0000.png (other names, same pixels), and the same path given twice:
+    one view, a note naming the copies, the same uncertainty as the image alone."""
+    alone, _ = calibrate_json(capsys, str(DATA / 'left-0000.png'), *RIGHT_SPEC)
+    copies = []
+    for k in range(5):
+        copies.append(tmp_path / f'copy-{k}.png')
+        shutil.copyfile(DATA / 'left-0000.png', copies[-1])
+    record, _ = calibrate_json(capsys, *map(str, copies), *RIGHT_SPEC)
+    assert record['images'] == 1
+    assert len(record['duplicate_views']) == 4
+    assert any('duplicate' in n and 'once' in n for n in record['notes'])
+    assert record['uncertainty_px'] == pytest.approx(alone['uncertainty_px'], rel=1e-6)
+    twice, _ = calibrate_json(capsys, str(DATA / 'left-0000.png'), str(DATA / 'left-0000.png'), *RIGHT_SPEC)
+    assert twice['images'] == 1 and twice['uncertainty_px'] == pytest.approx(alone['uncertainty_px'], rel=1e-6)
+
+
+def test_duplicate_views_count_once_in_fc_eq_d_too(tmp_path, capsys):
+    """Without a spec (FC_eq.d.): a corners file with one view under three names is one view, the
+    same camera as that view alone."""
+    from test_board_fit import TRUTH, board_views
+    from zeroshot_calib_ros.core.checkerboard.corners import CornerSet
+    corners, _ = board_views(TRUTH, 2, seed=3, noise=0.2)
+    c = corners.corners
+    tripled = CornerSet(corners.width, corners.height, corners.board, ['a.png', 'b.png', 'c.png', 'd.png'],
+                        np.array([c[0], c[0], c[0], c[1]]))
+    single = CornerSet(corners.width, corners.height, corners.board, ['a.png', 'd.png'], np.array([c[0], c[1]]))
+    tripled.save(str(tmp_path / 'tripled.json'))
+    single.save(str(tmp_path / 'single.json'))
+    record, _ = calibrate_json(capsys, '--corners', str(tmp_path / 'tripled.json'))
+    expected, _ = calibrate_json(capsys, '--corners', str(tmp_path / 'single.json'))
+    assert record['images'] == 2 and record['image_names'] == ['a.png', 'd.png']
+    assert [d['image'] for d in record['duplicate_views']] == ['b.png', 'c.png']
+    assert record['f'] == pytest.approx(expected['f'], rel=1e-9)
+
+
+# -- 4: the square size ------------------------------------------------------------------------------
+
+@pytest.mark.parametrize('square', ['1e300', '0', '-0.1', 'nan', 'inf', '1e-9', '108'])
+def test_an_insane_square_size_is_one_line_naming_the_option(tmp_path, capsys, square):
+    status, out, err = run_main(['calibrate', str(tmp_path / 'none.png'), '--square', square], capsys)
+    assert status == 2 and out == '' and len(err) == 1, err
+    assert err[0].startswith('zeroshot-calib: error: --square') and 'metres' in err[0] and 'allowed' in err[0]
+
+
+# -- 5: plumb_bob on a lens it cannot represent ------------------------------------------------------
+
+@needs_data
+@pytest.mark.parametrize('spec', [RIGHT_SPEC, []], ids=['spec-as-evidence', 'no-spec'])
+def test_plumb_bob_is_refused_for_a_180_degree_lens_and_nothing_is_written(tmp_path, capsys, spec):
+    out_yaml = tmp_path / 'camera.yaml'
+    status, out, err = run_main(['calibrate', str(DATA / 'left-0000.png'), *spec, '--distortion-model',
+                                 'plumb_bob', '--yaml', str(out_yaml)], capsys)
+    assert status == 2 and out == '' and len(err) == 1, err
+    assert '--distortion-model plumb_bob' in err[0] and 'equidistant' in err[0] and 'nan' not in err[0]
+    assert not out_yaml.exists()
+
+
+def test_plumb_bob_where_it_can_represent_the_lens_reports_a_real_fit_error(tmp_path, capsys):
+    """A lens of about 75 degrees (no spec, and with its spec as evidence): plumb_bob stays allowed
+    and its fit error is a number."""
+    from test_board_fit import board_views
+    from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
+    from zeroshot_calib_ros.core.estimation.terms import FovTerm
+    narrow = KannalaBrandtCamera(520.0, 520.0, 402.0, 248.0, 800, 500, [0.02, -0.01, 0.0, 0.0])
+    corners, _ = board_views(narrow, 3, seed=4, distance=(0.3, 0.5), noise=0.2)
+    corners.save(str(tmp_path / 'narrow.json'))
+    fovs = FovTerm({'hfov': 1.0, 'vfov': 1.0}, 800, 500).predicted(narrow)
+    for spec in ([], ['--hfov', repr(fovs['hfov']), '--vfov', repr(fovs['vfov'])]):
+        record, _ = calibrate_json(capsys, '--corners', str(tmp_path / 'narrow.json'), *spec,
+                                   '--distortion-model', 'plumb_bob')
+        assert record['distortion_model'] == 'plumb_bob'
+        assert math.isfinite(record['fit_error_px']) and any(d != 0 for d in record['D'])
