@@ -689,4 +689,26 @@ MUTANTS = [
         behaviour='image_rect is advertised only while rectify is true',
         tests=['test/test_node_contracts.py::test_image_rect_is_advertised_only_while_rectifying'],
     ),
+
+    # round 3: untested behaviours
+    dict(
+        id='camera-info-model-update-ignores-p',
+        file=f'{ROS_DATA}/camera_info_model.py',
+        old=("        key = (model, width, height, D.tobytes(), K.tobytes(), R.tobytes(), P.tobytes(), bx, by,\n"
+             "               rx, ry, rw, rh, do_rectify)"),
+        new=("        key = (model, width, height, D.tobytes(), K.tobytes(), R.tobytes(), bx, by,\n"
+             "               rx, ry, rw, rh, do_rectify)"),
+        behaviour='CameraInfoModel.update: a CameraInfo differing only in P is a change (maps and points follow it)',
+        tests=['test/test_camera_info_model.py::test_update_notices_a_change_of_p_alone'],
+    ),
+    dict(
+        id='camera-info-model-full-resolution-through-raw-roi',
+        file=f'{ROS_DATA}/camera_info_model.py',
+        old=("        x, y, _, _ = self.rectified_roi\n"
+             "        uv = _points(uv_reduced, 'uv_reduced', flat=False)"),
+        new=("        x, y, _, _ = self.raw_roi\n"
+             "        uv = _points(uv_reduced, 'uv_reduced', flat=False)"),
+        behaviour='to_full_resolution: with roi.do_rectify, reduced pixels are offset by the rectified ROI',
+        tests=['test/test_camera_info_model.py::test_to_full_resolution_with_do_rectify_goes_through_the_rectified_roi'],
+    ),
 ]
