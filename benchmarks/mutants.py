@@ -711,4 +711,29 @@ MUTANTS = [
         behaviour='to_full_resolution: with roi.do_rectify, reduced pixels are offset by the rectified ROI',
         tests=['test/test_camera_info_model.py::test_to_full_resolution_with_do_rectify_goes_through_the_rectified_roi'],
     ),
+    dict(
+        id='package-url-last-prefix-wins',
+        file=f'{ROS_DATA}/calibration_file.py',
+        old=("                path = os.path.join(prefix, 'share', package, rel)\n"
+             "                break\n"),
+        new=("                path = os.path.join(prefix, 'share', package, rel)\n"),
+        behaviour='package:// URLs: the first prefix of AMENT_PREFIX_PATH that has the package wins (overlays)',
+        tests=['test/test_calibration_file.py::test_package_urls_take_the_first_prefix_that_has_the_package'],
+    ),
+    dict(
+        id='atomic-save-no-directory-fsync',
+        file=f'{PKG}/core/atomic_file.py',
+        old='            os.fsync(dir_fd)\n',
+        new='            pass\n',
+        behaviour='Saves are durable: the content is fsynced before the rename, the directory after it',
+        tests=['test/test_calibration_file_save.py::test_the_directory_is_fsynced_after_the_rename'],
+    ),
+    dict(
+        id='atomic-save-fsyncs-the-file-not-its-directory',
+        file=f'{PKG}/core/atomic_file.py',
+        old="        dir_fd = os.open(directory, os.O_RDONLY | getattr(os, 'O_DIRECTORY', 0))",
+        new="        dir_fd = os.open(target, os.O_RDONLY)",
+        behaviour='Saves are durable: after the rename the directory holding the target is fsynced',
+        tests=['test/test_calibration_file_save.py::test_the_directory_is_fsynced_after_the_rename'],
+    ),
 ]
