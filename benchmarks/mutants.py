@@ -736,4 +736,12 @@ MUTANTS = [
         behaviour='Saves are durable: after the rename the directory holding the target is fsynced',
         tests=['test/test_calibration_file_save.py::test_the_directory_is_fsynced_after_the_rename'],
     ),
+    dict(
+        id='wide-solver-asked-law-falls-back',
+        file=f'{ZEROSHOT}/wide_solver.py',
+        old='        if not candidates and law is None and len(laws) < len(WIDE_LAWS):',
+        new='        if not candidates and len(laws) < len(WIDE_LAWS):',
+        behaviour="'wide-<law>' gives that law or an error naming why (never another law silently)",
+        tests=['test/test_wide_fov.py::test_a_law_asked_for_is_the_law_given_or_an_error_naming_why'],
+    ),
 ]
