@@ -744,4 +744,23 @@ MUTANTS = [
         behaviour="'wide-<law>' gives that law or an error naming why (never another law silently)",
         tests=['test/test_wide_fov.py::test_a_law_asked_for_is_the_law_given_or_an_error_naming_why'],
     ),
+    dict(
+        id='line-fit-always-highest-order',
+        file=f'{PKG}/core/estimation/fit.py',
+        old='    order = min(bic, key=bic.get)\n',
+        new='    order = orders[-1]\n',
+        behaviour='The line fit frees a shape term only when the lines pay for it (AIC order choice)',
+        tests=['test/test_estimation.py::test_the_line_fit_frees_only_the_shape_terms_the_lines_pay_for'],
+    ),
+    dict(
+        id='line-detection-max-curves-keeps-the-first',
+        file=f'{PKG}/core/lines/detect.py',
+        old=("    curves.sort(key=lambda c: -c.length_px)\n"
+             "    return curves[:opts['max_curves']]"),
+        new=("    curves = curves[:opts['max_curves']]\n"
+             "    curves.sort(key=lambda c: -c.length_px)\n"
+             "    return curves"),
+        behaviour='max_curves: line detection keeps the N longest curves',
+        tests=['test/test_line_detection.py::test_max_curves_keeps_the_longest'],
+    ),
 ]

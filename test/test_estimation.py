@@ -431,3 +431,21 @@ def test_one_camera_with_a_wrong_spec_is_the_spec_disagreeing_not_the_images():
     assert not result.accepted
     assert result.reason.startswith('disagreement between the lines and the spec'), result.reason
     assert np.allclose(result.camera.K, result.zero_shot_camera.K)
+
+
+@pytest.mark.parametrize('deviation, order', [([0, 0, 0, 0], 0), ([0.004, 0, 0, 0], 1), ([0.004, -0.002, 0, 0], 2)])
+def test_the_line_fit_frees_only_the_shape_terms_the_lines_pay_for(deviation, order):
+    """The order choice (AIC): noise-free lines of a camera whose shape departs from zero-shot's
+    in its first n terms only: the fit keeps order n (every further term buys nothing and costs
+    the penalty; one term fewer leaves the lines bent)."""
+    from zeroshot_calib_ros.core.estimation.fit import fit_lines
+    from zeroshot_calib_ros.core.estimation.terms import ShapePrior
+    zs = zero_shot_camera(spec_of(TRUTH), W, H)
+    camera = KannalaBrandtCamera(zs.fx, zs.fy, zs.cx, zs.cy, W, H, zs.D + np.array(deviation))
+    spec = spec_of(camera)
+    rng = np.random.default_rng(1)
+    term = StraightnessTerm([c for _ in range(4) for c in line_curves(camera, rng, 10, noise=0.0)], sigma=0.3)
+    priors = [FovTerm.from_spec(spec), PrincipalPointPrior(W, H), ShapePrior(zs, zs.max_field_angle(), 0.02)]
+    fit = fit_lines(term, priors, zs)
+    assert fit.order == order, fit.bic
+    assert best_rotation_rms(fit.camera, camera) < 0.05
