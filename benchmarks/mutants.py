@@ -763,4 +763,22 @@ MUTANTS = [
         behaviour='max_curves: line detection keeps the N longest curves',
         tests=['test/test_line_detection.py::test_max_curves_keeps_the_longest'],
     ),
+    dict(
+        id='refine-coverage-rows-over-columns',
+        file=f'{PKG}/core/estimation/refine.py',
+        old='    gy = np.clip((points[:, 1] / height * grid[1]).astype(int), 0, grid[1] - 1)',
+        new='    gy = np.clip((points[:, 1] / height * grid[0]).astype(int), 0, grid[1] - 1)',
+        behaviour="coverage: the fraction of an 8 x 6 grid's cells the used curves touch (6 rows down the height)",
+        tests=['test/test_estimation.py::test_coverage_counts_the_cells_of_the_8_by_6_grid_the_points_touch'],
+    ),
+    dict(
+        id='board-fit-rejected-corners-kept',
+        file=f'{PKG}/core/estimation/board_fit.py',
+        old=("            break\n"
+             "        term = term.copy(weights=weights)\n"),
+        new=("            break\n"
+             "        term.copy(weights=weights)\n"),
+        behaviour='fit_board: outlier corners are rejected, named and left out of the fit',
+        tests=['test/test_board_fit.py::test_outlier_corners_are_rejected_named_and_left_out'],
+    ),
 ]

@@ -449,3 +449,27 @@ def test_the_line_fit_frees_only_the_shape_terms_the_lines_pay_for(deviation, or
     fit = fit_lines(term, priors, zs)
     assert fit.order == order, fit.bic
     assert best_rotation_rms(fit.camera, camera) < 0.05
+
+
+def test_coverage_counts_the_cells_of_the_8_by_6_grid_the_points_touch():
+    """The refinement's coverage: the fraction of an 8 x 6 grid's cells (8 columns across the
+    width, 6 rows down the height) that the points touch; reach: farthest point from the centre
+    over the half-diagonal."""
+    from zeroshot_calib_ros.core.estimation.refine import COVERAGE_GRID, coverage_of
+    assert COVERAGE_GRID == (8, 6)
+    t = np.linspace(0.0, 1.0, 20001)
+    # the diagonal from corner to corner crosses 8 + 6 - gcd(8, 6) = 12 cells
+    diagonal = np.stack([t * W, t * H], axis=1)
+    assert coverage_of(diagonal, W, H) == (pytest.approx(12 / 48), pytest.approx(1.0))
+    # a vertical run down the top half of the first column: rows 0-2 of 6
+    column = np.stack([np.full_like(t, 0.5 * W / 8), t * (H / 2 - 1)], axis=1)
+    assert coverage_of(column, W, H)[0] == pytest.approx(3 / 48)
+    # a horizontal run across the left half of the last row: columns 0-3 of 8
+    row = np.stack([t * (W / 2 - 1), np.full_like(t, H - 1.0)], axis=1)
+    assert coverage_of(row, W, H)[0] == pytest.approx(4 / 48)
+    # the centre of each cell of the bottom-right quarter: 4 x 3 cells
+    centres = np.array([[(i + 0.5) * W / 8, (j + 0.5) * H / 6] for i in range(4, 8) for j in range(3, 6)])
+    coverage, reach = coverage_of(centres, W, H)
+    assert coverage == pytest.approx(12 / 48)
+    assert reach == pytest.approx(math.hypot(3.5 * W / 8, 2.5 * H / 6) / math.hypot(W / 2, H / 2))
+    assert coverage_of(np.empty((0, 2)), W, H) == (0.0, 0.0)
