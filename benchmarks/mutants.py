@@ -781,4 +781,12 @@ MUTANTS = [
         behaviour='fit_board: outlier corners are rejected, named and left out of the fit',
         tests=['test/test_board_fit.py::test_outlier_corners_are_rejected_named_and_left_out'],
     ),
+    dict(
+        id='refine-zero-shot-error-bar-not-scaled',
+        file=f'{PKG}/core/estimation/refine.py',
+        old='    zs_u_px = None if zs_u.rms_px is None else zs_u.rms_px * scale\n',
+        new='    zs_u_px = None if zs_u.rms_px is None else zs_u.rms_px\n',
+        behaviour="Refinement of frames at another size than the spec's: the zero-shot error bar is in the frames' pixels",
+        tests=['test/test_estimation.py::test_zero_shot_error_bar_of_frames_at_another_size_is_in_their_pixels'],
+    ),
 ]

@@ -473,3 +473,19 @@ def test_coverage_counts_the_cells_of_the_8_by_6_grid_the_points_touch():
     assert coverage == pytest.approx(12 / 48)
     assert reach == pytest.approx(math.hypot(3.5 * W / 8, 2.5 * H / 6) / math.hypot(W / 2, H / 2))
     assert coverage_of(np.empty((0, 2)), W, H) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize('factor', [0.5, 2.0])
+def test_zero_shot_error_bar_of_frames_at_another_size_is_in_their_pixels(factor):
+    """Frames at another size than the spec's (a binned or resized mode): the zero-shot error bar
+    the refinement reports (and gates against) is in the frames' pixels: the same as the error
+    bar of the same lens specified at the frames' size (an independent computation)."""
+    spec = spec_of(TRUTH)
+    width, height = int(W * factor), int(H * factor)
+    at_spec_size = zero_shot_uncertainty(spec).rms_px
+    at_frame_size = zero_shot_uncertainty(CameraSpec(width, height, **spec.given())).rms_px
+    assert at_frame_size == pytest.approx(factor * at_spec_size, rel=0.02)  # pixels scale with the size
+    result = refine_camera(spec, [], width, height)
+    assert not result.accepted
+    assert result.zero_shot_uncertainty_px == pytest.approx(at_frame_size, rel=0.02)
+    assert result.uncertainty_px == result.zero_shot_uncertainty_px
