@@ -489,3 +489,30 @@ def test_zero_shot_error_bar_of_frames_at_another_size_is_in_their_pixels(factor
     assert not result.accepted
     assert result.zero_shot_uncertainty_px == pytest.approx(at_frame_size, rel=0.02)
     assert result.uncertainty_px == result.zero_shot_uncertainty_px
+
+
+def test_refine_from_images_detects_again_with_the_refined_camera(monkeypatch):
+    """refine_from_images: the first detection with zero-shot's camera, the second with the
+    camera the first fit gave (where it puts the lines), which also starts the second fit."""
+    from zeroshot_calib_ros.core.estimation import refine as refine_module
+    from zeroshot_calib_ros.core.lines import detect as detect_module
+    spec = spec_of(TRUTH)
+    zs = zero_shot_camera(spec, W, H)
+    detected_with, started_from = [], []
+
+    def detect(image, camera, image_id=None, views=None, **kwargs):
+        detected_with.append(camera)
+        return []
+
+    def fit(spec, curves, width, height, tolerance, initial=None, solution=None):
+        started_from.append(initial)
+        return refine_module.Refinement(TRUTH, True, 'accepted', 1.0, 3.0, 0, 0, None, None, 0.0, 0.0,
+                                        zero_shot_camera=zs)
+    monkeypatch.setattr(detect_module, 'detect_curves', detect)
+    monkeypatch.setattr(detect_module, 'make_views', lambda camera: None)
+    monkeypatch.setattr(refine_module, 'refine_camera', fit)
+    refine_from_images(spec, [np.zeros((H, W), np.uint8)] * 2, rounds=2)
+    assert len(detected_with) == 4
+    assert all(np.allclose(c.K, zs.K) and np.allclose(c.D, zs.D) for c in detected_with[:2])
+    assert detected_with[2] is TRUTH and detected_with[3] is TRUTH
+    assert started_from == [None, TRUTH]
