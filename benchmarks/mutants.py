@@ -847,4 +847,32 @@ MUTANTS = [
         behaviour='refine: lines pooled over the last 8 frames taken',
         tests=['test/test_online_refinement.py::test_the_pool_is_the_newest_8_frames_and_it_finishes_16_frames_after_the_last_offer'],
     ),
+    dict(
+        id='node-refined-p-ignores-balance-and-fov-scale',
+        file=f'{ROS}/node.py',
+        old=("            calibration = refined_calibration(result.camera, width, height, settings.balance, settings.fov_scale,\n"
+             "                                              settings.camera_name)"),
+        new=("            calibration = refined_calibration(result.camera, width, height,\n"
+             "                                              camera_name=settings.camera_name)"),
+        behaviour='refine: the refined CameraInfo\'s P is chosen by balance and fov_scale, as the zero-shot one\'s',
+        tests=['test/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
+    ),
+    dict(
+        id='refined-calibration-p-ignores-balance',
+        file=f'{ROS_DATA}/online_refinement.py',
+        old='    P = np.hstack([new_camera_matrix(camera, balance, fov_scale), np.zeros((3, 1))])',
+        new='    P = np.hstack([new_camera_matrix(camera, 0.0, fov_scale), np.zeros((3, 1))])',
+        behaviour='refine: the refined CameraInfo\'s P is chosen by balance and fov_scale, as the zero-shot one\'s',
+        tests=['test/test_online_refinement.py::test_the_refined_record_chooses_p_by_balance_and_fov_scale'],
+    ),
+    dict(
+        id='node-refine-interval-change-not-passed-to-the-refiner',
+        file=f'{ROS}/node.py',
+        old=("        self._refine, self._refine_interval = refine, interval\n"
+             "        if self._refiner is not None:\n"
+             "            self._refiner.interval = interval\n"),
+        new=("        self._refine, self._refine_interval = refine, interval\n"),
+        behaviour='refine_interval: a change at run time governs the running refiner',
+        tests=['test/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
+    ),
 ]

@@ -332,3 +332,14 @@ def test_frames_offered_while_the_worker_is_busy_are_dropped_uncopied_and_uncoun
     assert refiner.due(100.0) and refiner.offer(late, 100.0) and late.reads == 1
     assert refiner.status.frames_kept == 2
     open(gate + '2', 'w').close()  # let the stand-in worker answer and exit
+
+
+def test_the_refined_record_chooses_p_by_balance_and_fov_scale():
+    """The ROS record of a refined camera: P is the rectified camera chosen by balance and
+    fov_scale (as a zero-shot record's), at the record's size."""
+    from zeroshot_calib_ros.core.ros_data.rectify import new_camera_matrix
+    for balance, fov_scale in ((0.0, 1.0), (0.5, 1.0), (0.0, 0.8), (1.0, 1.3)):
+        record = refined_calibration(TRUE, 1280, 720, balance, fov_scale)
+        np.testing.assert_allclose(record.P[:, :3], new_camera_matrix(TRUE.scaled(1280, 720), balance, fov_scale))
+        np.testing.assert_array_equal(record.P[:, 3], 0.0)
+    assert not np.allclose(refined_calibration(TRUE, 640, 360, 0.5, 0.8).P, refined_calibration(TRUE, 640, 360).P)
