@@ -689,4 +689,190 @@ MUTANTS = [
         behaviour='image_rect is advertised only while rectify is true',
         tests=['test/test_node_contracts.py::test_image_rect_is_advertised_only_while_rectifying'],
     ),
+
+    # round 3: untested behaviours
+    dict(
+        id='camera-info-model-update-ignores-p',
+        file=f'{ROS_DATA}/camera_info_model.py',
+        old=("        key = (model, width, height, D.tobytes(), K.tobytes(), R.tobytes(), P.tobytes(), bx, by,\n"
+             "               rx, ry, rw, rh, do_rectify)"),
+        new=("        key = (model, width, height, D.tobytes(), K.tobytes(), R.tobytes(), bx, by,\n"
+             "               rx, ry, rw, rh, do_rectify)"),
+        behaviour='CameraInfoModel.update: a CameraInfo differing only in P is a change (maps and points follow it)',
+        tests=['test/test_camera_info_model.py::test_update_notices_a_change_of_p_alone'],
+    ),
+    dict(
+        id='camera-info-model-full-resolution-through-raw-roi',
+        file=f'{ROS_DATA}/camera_info_model.py',
+        old=("        x, y, _, _ = self.rectified_roi\n"
+             "        uv = _points(uv_reduced, 'uv_reduced', flat=False)"),
+        new=("        x, y, _, _ = self.raw_roi\n"
+             "        uv = _points(uv_reduced, 'uv_reduced', flat=False)"),
+        behaviour='to_full_resolution: with roi.do_rectify, reduced pixels are offset by the rectified ROI',
+        tests=['test/test_camera_info_model.py::test_to_full_resolution_with_do_rectify_goes_through_the_rectified_roi'],
+    ),
+    dict(
+        id='package-url-last-prefix-wins',
+        file=f'{ROS_DATA}/calibration_file.py',
+        old=("                path = os.path.join(prefix, 'share', package, rel)\n"
+             "                break\n"),
+        new=("                path = os.path.join(prefix, 'share', package, rel)\n"),
+        behaviour='package:// URLs: the first prefix of AMENT_PREFIX_PATH that has the package wins (overlays)',
+        tests=['test/test_calibration_file.py::test_package_urls_take_the_first_prefix_that_has_the_package'],
+    ),
+    dict(
+        id='atomic-save-no-directory-fsync',
+        file=f'{PKG}/core/atomic_file.py',
+        old='            os.fsync(dir_fd)\n',
+        new='            pass\n',
+        behaviour='Saves are durable: the content is fsynced before the rename, the directory after it',
+        tests=['test/test_calibration_file_save.py::test_the_directory_is_fsynced_after_the_rename'],
+    ),
+    dict(
+        id='atomic-save-fsyncs-the-file-not-its-directory',
+        file=f'{PKG}/core/atomic_file.py',
+        old="        dir_fd = os.open(directory, os.O_RDONLY | getattr(os, 'O_DIRECTORY', 0))",
+        new="        dir_fd = os.open(target, os.O_RDONLY)",
+        behaviour='Saves are durable: after the rename the directory holding the target is fsynced',
+        tests=['test/test_calibration_file_save.py::test_the_directory_is_fsynced_after_the_rename'],
+    ),
+    dict(
+        id='wide-solver-asked-law-falls-back',
+        file=f'{ZEROSHOT}/wide_solver.py',
+        old='        if not candidates and law is None and len(laws) < len(WIDE_LAWS):',
+        new='        if not candidates and len(laws) < len(WIDE_LAWS):',
+        behaviour="'wide-<law>' gives that law or an error naming why (never another law silently)",
+        tests=['test/test_wide_fov.py::test_a_law_asked_for_is_the_law_given_or_an_error_naming_why'],
+    ),
+    dict(
+        id='line-fit-always-highest-order',
+        file=f'{PKG}/core/estimation/fit.py',
+        old='    order = min(bic, key=bic.get)\n',
+        new='    order = orders[-1]\n',
+        behaviour='The line fit frees a shape term only when the lines pay for it (AIC order choice)',
+        tests=['test/test_estimation.py::test_the_line_fit_frees_only_the_shape_terms_the_lines_pay_for'],
+    ),
+    dict(
+        id='line-detection-max-curves-keeps-the-first',
+        file=f'{PKG}/core/lines/detect.py',
+        old=("    curves.sort(key=lambda c: -c.length_px)\n"
+             "    return curves[:opts['max_curves']]"),
+        new=("    curves = curves[:opts['max_curves']]\n"
+             "    curves.sort(key=lambda c: -c.length_px)\n"
+             "    return curves"),
+        behaviour='max_curves: line detection keeps the N longest curves',
+        tests=['test/test_line_detection.py::test_max_curves_keeps_the_longest'],
+    ),
+    dict(
+        id='refine-coverage-rows-over-columns',
+        file=f'{PKG}/core/estimation/refine.py',
+        old='    gy = np.clip((points[:, 1] / height * grid[1]).astype(int), 0, grid[1] - 1)',
+        new='    gy = np.clip((points[:, 1] / height * grid[0]).astype(int), 0, grid[1] - 1)',
+        behaviour="coverage: the fraction of an 8 x 6 grid's cells the used curves touch (6 rows down the height)",
+        tests=['test/test_estimation.py::test_coverage_counts_the_cells_of_the_8_by_6_grid_the_points_touch'],
+    ),
+    dict(
+        id='board-fit-rejected-corners-kept',
+        file=f'{PKG}/core/estimation/board_fit.py',
+        old=("            break\n"
+             "        term = term.copy(weights=weights)\n"),
+        new=("            break\n"
+             "        term.copy(weights=weights)\n"),
+        behaviour='fit_board: outlier corners are rejected, named and left out of the fit',
+        tests=['test/test_board_fit.py::test_outlier_corners_are_rejected_named_and_left_out'],
+    ),
+    dict(
+        id='refine-zero-shot-error-bar-not-scaled',
+        file=f'{PKG}/core/estimation/refine.py',
+        old='    zs_u_px = None if zs_u.rms_px is None else zs_u.rms_px * scale\n',
+        new='    zs_u_px = None if zs_u.rms_px is None else zs_u.rms_px\n',
+        behaviour="Refinement of frames at another size than the spec's: the zero-shot error bar is in the frames' pixels",
+        tests=['test/test_estimation.py::test_zero_shot_error_bar_of_frames_at_another_size_is_in_their_pixels'],
+    ),
+    dict(
+        id='online-refiner-detects-with-zero-shot-after-an-offer',
+        file=f'{ROS_DATA}/online_refinement.py',
+        old='            self.camera = result.camera  # later frames are detected with it (the frames\' size)\n',
+        new='',
+        behaviour='refine: after a refined camera is offered, lines are detected with it (the camera in force)',
+        tests=['test/test_online_refinement.py::test_lines_are_detected_with_the_camera_in_force'],
+    ),
+    dict(
+        id='online-refiner-initial-camera-not-used-for-detection',
+        file=f'{ROS_DATA}/online_refinement.py',
+        old=("            camera = (self.initial.scaled(width, height) if self.initial is not None else\n"
+             "                      zero_shot_camera(self.spec, width, height, self.solution))"),
+        new="            camera = zero_shot_camera(self.spec, width, height, self.solution)",
+        behaviour='refine from an earlier refinement: lines are detected with that camera (scaled to the frames)',
+        tests=['test/test_online_refinement.py::test_lines_are_detected_with_the_initial_camera_scaled_to_the_frames'],
+    ),
+    dict(
+        id='refine-from-images-second-detection-with-zero-shot',
+        file=f'{PKG}/core/estimation/refine.py',
+        old=("            break\n"
+             "        camera = attempt.camera\n"),
+        new=("            break\n"),
+        behaviour='refine_from_images: the second detection round uses the refined camera',
+        tests=['test/test_estimation.py::test_refine_from_images_detects_again_with_the_refined_camera'],
+    ),
+    dict(
+        id='online-refiner-keeps-frames-while-busy',
+        file=f'{ROS_DATA}/online_refinement.py',
+        old='        return not (self._done or self._busy) and (self._last_kept is None or t - self._last_kept >= self.interval)',
+        new='        return not self._done and (self._last_kept is None or t - self._last_kept >= self.interval)',
+        behaviour='refine: frames offered while the worker is busy are dropped (not copied, not counted)',
+        tests=['test/test_online_refinement.py::test_frames_offered_while_the_worker_is_busy_are_dropped_uncopied_and_uncounted'],
+    ),
+    dict(
+        id='online-refiner-pool-of-6',
+        file=f'{ROS_DATA}/online_refinement.py',
+        old='MAX_FRAMES = 8\n',
+        new='MAX_FRAMES = 6\n',
+        behaviour='refine: lines pooled over the last 8 frames taken',
+        tests=['test/test_online_refinement.py::test_the_pool_is_the_newest_8_frames_and_it_finishes_16_frames_after_the_last_offer'],
+    ),
+    dict(
+        id='online-refiner-finishes-one-frame-early',
+        file=f'{ROS_DATA}/online_refinement.py',
+        old='        finished = self.offered is not None and self.since_offer >= self.finish_after\n',
+        new='        finished = self.offered is not None and self.since_offer >= self.finish_after - 1\n',
+        behaviour='refine: finished after 16 frames without a better fit',
+        tests=['test/test_online_refinement.py::test_the_pool_is_the_newest_8_frames_and_it_finishes_16_frames_after_the_last_offer'],
+    ),
+    dict(
+        id='online-refiner-default-pool-not-sent',
+        file=f'{ROS_DATA}/online_refinement.py',
+        old="                               'initial': _camera_tuple(initial), 'max_frames': int(max_frames),",
+        new="                               'initial': _camera_tuple(initial), 'max_frames': int(finish_after),",
+        behaviour='refine: lines pooled over the last 8 frames taken',
+        tests=['test/test_online_refinement.py::test_the_pool_is_the_newest_8_frames_and_it_finishes_16_frames_after_the_last_offer'],
+    ),
+    dict(
+        id='node-refined-p-ignores-balance-and-fov-scale',
+        file=f'{ROS}/node.py',
+        old=("            calibration = refined_calibration(result.camera, width, height, settings.balance, settings.fov_scale,\n"
+             "                                              settings.camera_name)"),
+        new=("            calibration = refined_calibration(result.camera, width, height,\n"
+             "                                              camera_name=settings.camera_name)"),
+        behaviour='refine: the refined CameraInfo\'s P is chosen by balance and fov_scale, as the zero-shot one\'s',
+        tests=['test/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
+    ),
+    dict(
+        id='refined-calibration-p-ignores-balance',
+        file=f'{ROS_DATA}/online_refinement.py',
+        old='    P = np.hstack([new_camera_matrix(camera, balance, fov_scale), np.zeros((3, 1))])',
+        new='    P = np.hstack([new_camera_matrix(camera, 0.0, fov_scale), np.zeros((3, 1))])',
+        behaviour='refine: the refined CameraInfo\'s P is chosen by balance and fov_scale, as the zero-shot one\'s',
+        tests=['test/test_online_refinement.py::test_the_refined_record_chooses_p_by_balance_and_fov_scale'],
+    ),
+    dict(
+        id='node-refine-interval-change-not-passed-to-the-refiner',
+        file=f'{ROS}/node.py',
+        old=("        self._refine, self._refine_interval = refine, interval\n"
+             "        if self._refiner is not None:\n"
+             "            self._refiner.interval = interval\n"),
+        new=("        self._refine, self._refine_interval = refine, interval\n"),
+        behaviour='refine_interval: a change at run time governs the running refiner',
+        tests=['test/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
+    ),
 ]

@@ -256,3 +256,25 @@ def test_the_gate_accepts_views_that_pin_the_camera():
     assert fit.accepted, fit.reason
     assert fit.camera is fit.fitted_camera
     assert dense_error(fit.camera) < dense_error(fit.zero_shot_camera) - 0.5
+
+
+def test_outlier_corners_are_rejected_named_and_left_out():
+    """Three corners 12 px off (a detector snapping to the wrong corner): fit_board rejects exactly
+    those, names them (image and index) in its result and notes, fits the other corners, and
+    is as near the truth as without them."""
+    corners, _ = board_views(TRUTH, 2, seed=11, distance=(0.22, 0.3), spread=0.3)
+    bad = {(0, 5): (12.0, 0.0), (1, 20): (0.0, -12.0), (1, 41): (8.5, 8.5)}
+    spoiled = corners.corners.copy()
+    for (view, index), shift in bad.items():
+        spoiled[view, index] += shift
+    spoilt = CornerSet(W, H, BOARD, corners.names, spoiled)
+    fit = fit_board(spoilt, true_spec(), [0, 1])
+    assert {(r.image, r.index) for r in fit.rejected} == {(corners.names[v], j) for v, j in bad}, fit.rejected
+    assert all(r.residual_px > 8 for r in fit.rejected), fit.rejected
+    assert fit.corners_used == 2 * 48 - 3
+    assert any(note.startswith('rejected 3 outlier corner(s)') for note in fit.notes), fit.notes
+    assert fit.rms_px < 0.5  # over the corners used: the noise (0.2 px per coordinate), not the outliers
+    clean = fit_board(corners, true_spec(), [0, 1])
+    assert clean.rejected == [] and clean.corners_used == 96
+    assert fit.accepted, fit.reason
+    assert dense_error(fit.camera) < dense_error(clean.camera) + 0.3

@@ -626,3 +626,18 @@ def test_messages_show_huge_nested_values_in_bounded_time():
     with pytest.raises(CalibrationFileError, match='image_width') as excinfo:
         CameraCalibration.from_dict({'image_width': value})
     assert len(one_line_error(excinfo)) < 300 and time.monotonic() - start < 2.0
+
+
+def test_package_urls_take_the_first_prefix_that_has_the_package(tmp_path, monkeypatch):
+    """Overlay workspaces: AMENT_PREFIX_PATH lists the overlay first; the first prefix whose
+    ament index has the package wins (as ament_index's get_package_share_directory)."""
+    prefixes = [tmp_path / name for name in ('empty', 'overlay', 'underlay')]
+    for prefix in prefixes[1:]:
+        index = prefix / 'share' / 'ament_index' / 'resource_index' / 'packages'
+        index.mkdir(parents=True)
+        (index / 'mypkg').touch()
+    prefixes[0].mkdir()
+    monkeypatch.setenv('AMENT_PREFIX_PATH', os.pathsep.join(map(str, prefixes)))
+    assert resolve_camera_info_url('package://mypkg/calib/cam.yaml') == str(prefixes[1] / 'share/mypkg/calib/cam.yaml')
+    monkeypatch.setenv('AMENT_PREFIX_PATH', os.pathsep.join(map(str, prefixes[::-1])))
+    assert resolve_camera_info_url('package://mypkg/calib/cam.yaml') == str(prefixes[2] / 'share/mypkg/calib/cam.yaml')

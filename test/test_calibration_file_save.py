@@ -235,3 +235,32 @@ def test_kill_9_during_saves_leaves_a_or_b_and_no_temps(tmp_path, monkeypatch, t
     print(f'\nkill -9 loop: {KILLS} kills; file was A {seen["calib_a"]} times, B {seen["calib_b"]} times, '
           f'never torn; {temp_file} temporary file: {sum(temps_after_kill)} kills left one (killed after it '
           'was named, before the rename), each removed by the next save; 0 left at the end')
+
+
+def test_the_directory_is_fsynced_after_the_rename(tmp_path, monkeypatch, temp_file):
+    """Durability: the content is fsynced before it replaces the target, and the directory
+    holding the target after the rename (else a power cut can bring the old name back)."""
+    path = tmp_path / 'cam.yaml'
+    sample(camera_name='old').save(str(path))
+    events = []
+    real_fsync, real_replace = os.fsync, os.replace
+
+    def fsync(fd):
+        events.append(('fsync', os.path.realpath(f'/proc/self/fd/{fd}')))
+        return real_fsync(fd)
+
+    def replace(src, dst, *args, **kwargs):
+        events.append(('replace', str(dst)))
+        return real_replace(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, 'fsync', fsync)
+    monkeypatch.setattr(os, 'replace', replace)
+    sample(camera_name='new').save(str(path))
+    monkeypatch.undo()
+    kinds = [kind for kind, _ in events]
+    assert kinds.count('replace') == 1, events
+    renamed = kinds.index('replace')
+    assert events[renamed] == ('replace', os.path.realpath(path)), events
+    assert 'fsync' in kinds[:renamed], events  # the new content, before it gets the name
+    assert ('fsync', os.path.realpath(tmp_path)) in events[renamed + 1:], events  # the directory, after the rename
+    assert CameraCalibration.load(str(path)).camera_name == 'new'

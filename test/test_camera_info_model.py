@@ -398,3 +398,30 @@ def test_rclpy_field_types_are_read():
     info = camera_info('equidistant')
     info.d = array('d', DISTORTIONS['equidistant'])
     assert np.array_equal(CameraInfoModel(info).D, DISTORTIONS['equidistant'])
+
+
+def test_update_notices_a_change_of_p_alone():
+    """A CameraInfo that differs only in P (balance / fov_scale changed upstream) is a change:
+    update says so, and points and maps follow the new P."""
+    info = camera_info('equidistant')
+    cam = CameraInfoModel(info)
+    maps = cam.rectification_maps()
+    P2 = P_NEW.copy()
+    P2[0, 0] = P2[1, 1] = 500.0
+    assert cam.update(camera_info('equidistant', P=P2)) is True
+    assert np.array_equal(cam.P, P2) and cam.fx == 500.0
+    assert cam.rectification_maps() is not maps
+    ray = cam.project_pixel_to_3d_ray([P2[0, 2] + 50.0, P2[1, 2]])
+    assert ray[0] / ray[2] == pytest.approx(50.0 / 500.0, abs=1e-12)
+
+
+def test_to_full_resolution_with_do_rectify_goes_through_the_rectified_roi(hero9):
+    """With roi.do_rectify, reduced pixels are pixels of the rectified ROI: full = reduced *
+    binning + the rectified ROI's corner (not the raw ROI's)."""
+    cam = CameraInfoModel(camera_info('equidistant', D=hero9.D, K=hero9.K, R=hero9.R, P=hero9.P,
+                                      width=1920, height=1080, binning=BINNING, roi=ROI, do_rectify=True))
+    x, y, _, _ = cam.rectified_roi
+    assert (x, y) != ROI[:2]  # the rectified corner differs from the raw one for this fisheye
+    uv = np.array([[10.0, 20.0], [100.0, 50.0]])
+    assert np.array_equal(cam.to_full_resolution(uv), uv * 2 + [x, y])
+    assert np.array_equal(cam.to_reduced_resolution(cam.to_full_resolution(uv)), uv)

@@ -431,3 +431,88 @@ def test_one_camera_with_a_wrong_spec_is_the_spec_disagreeing_not_the_images():
     assert not result.accepted
     assert result.reason.startswith('disagreement between the lines and the spec'), result.reason
     assert np.allclose(result.camera.K, result.zero_shot_camera.K)
+
+
+@pytest.mark.parametrize('deviation, order', [([0, 0, 0, 0], 0), ([0.004, 0, 0, 0], 1), ([0.004, -0.002, 0, 0], 2)])
+def test_the_line_fit_frees_only_the_shape_terms_the_lines_pay_for(deviation, order):
+    """The order choice (AIC): noise-free lines of a camera whose shape departs from zero-shot's
+    in its first n terms only: the fit keeps order n (every further term buys nothing and costs
+    the penalty; one term fewer leaves the lines bent)."""
+    from zeroshot_calib_ros.core.estimation.fit import fit_lines
+    from zeroshot_calib_ros.core.estimation.terms import ShapePrior
+    zs = zero_shot_camera(spec_of(TRUTH), W, H)
+    camera = KannalaBrandtCamera(zs.fx, zs.fy, zs.cx, zs.cy, W, H, zs.D + np.array(deviation))
+    spec = spec_of(camera)
+    rng = np.random.default_rng(1)
+    term = StraightnessTerm([c for _ in range(4) for c in line_curves(camera, rng, 10, noise=0.0)], sigma=0.3)
+    priors = [FovTerm.from_spec(spec), PrincipalPointPrior(W, H), ShapePrior(zs, zs.max_field_angle(), 0.02)]
+    fit = fit_lines(term, priors, zs)
+    assert fit.order == order, fit.bic
+    assert best_rotation_rms(fit.camera, camera) < 0.05
+
+
+def test_coverage_counts_the_cells_of_the_8_by_6_grid_the_points_touch():
+    """The refinement's coverage: the fraction of an 8 x 6 grid's cells (8 columns across the
+    width, 6 rows down the height) that the points touch; reach: farthest point from the centre
+    over the half-diagonal."""
+    from zeroshot_calib_ros.core.estimation.refine import COVERAGE_GRID, coverage_of
+    assert COVERAGE_GRID == (8, 6)
+    t = np.linspace(0.0, 1.0, 20001)
+    # the diagonal from corner to corner crosses 8 + 6 - gcd(8, 6) = 12 cells
+    diagonal = np.stack([t * W, t * H], axis=1)
+    assert coverage_of(diagonal, W, H) == (pytest.approx(12 / 48), pytest.approx(1.0))
+    # a vertical run down the top half of the first column: rows 0-2 of 6
+    column = np.stack([np.full_like(t, 0.5 * W / 8), t * (H / 2 - 1)], axis=1)
+    assert coverage_of(column, W, H)[0] == pytest.approx(3 / 48)
+    # a horizontal run across the left half of the last row: columns 0-3 of 8
+    row = np.stack([t * (W / 2 - 1), np.full_like(t, H - 1.0)], axis=1)
+    assert coverage_of(row, W, H)[0] == pytest.approx(4 / 48)
+    # the centre of each cell of the bottom-right quarter: 4 x 3 cells
+    centres = np.array([[(i + 0.5) * W / 8, (j + 0.5) * H / 6] for i in range(4, 8) for j in range(3, 6)])
+    coverage, reach = coverage_of(centres, W, H)
+    assert coverage == pytest.approx(12 / 48)
+    assert reach == pytest.approx(math.hypot(3.5 * W / 8, 2.5 * H / 6) / math.hypot(W / 2, H / 2))
+    assert coverage_of(np.empty((0, 2)), W, H) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize('factor', [0.5, 2.0])
+def test_zero_shot_error_bar_of_frames_at_another_size_is_in_their_pixels(factor):
+    """Frames at another size than the spec's (a binned or resized mode): the zero-shot error bar
+    the refinement reports (and gates against) is in the frames' pixels: the same as the error
+    bar of the same lens specified at the frames' size (an independent computation)."""
+    spec = spec_of(TRUTH)
+    width, height = int(W * factor), int(H * factor)
+    at_spec_size = zero_shot_uncertainty(spec).rms_px
+    at_frame_size = zero_shot_uncertainty(CameraSpec(width, height, **spec.given())).rms_px
+    assert at_frame_size == pytest.approx(factor * at_spec_size, rel=0.02)  # pixels scale with the size
+    result = refine_camera(spec, [], width, height)
+    assert not result.accepted
+    assert result.zero_shot_uncertainty_px == pytest.approx(at_frame_size, rel=0.02)
+    assert result.uncertainty_px == result.zero_shot_uncertainty_px
+
+
+def test_refine_from_images_detects_again_with_the_refined_camera(monkeypatch):
+    """refine_from_images: the first detection with zero-shot's camera, the second with the
+    camera the first fit gave (where it puts the lines), which also starts the second fit."""
+    from zeroshot_calib_ros.core.estimation import refine as refine_module
+    from zeroshot_calib_ros.core.lines import detect as detect_module
+    spec = spec_of(TRUTH)
+    zs = zero_shot_camera(spec, W, H)
+    detected_with, started_from = [], []
+
+    def detect(image, camera, image_id=None, views=None, **kwargs):
+        detected_with.append(camera)
+        return []
+
+    def fit(spec, curves, width, height, tolerance, initial=None, solution=None):
+        started_from.append(initial)
+        return refine_module.Refinement(TRUTH, True, 'accepted', 1.0, 3.0, 0, 0, None, None, 0.0, 0.0,
+                                        zero_shot_camera=zs)
+    monkeypatch.setattr(detect_module, 'detect_curves', detect)
+    monkeypatch.setattr(detect_module, 'make_views', lambda camera: None)
+    monkeypatch.setattr(refine_module, 'refine_camera', fit)
+    refine_from_images(spec, [np.zeros((H, W), np.uint8)] * 2, rounds=2)
+    assert len(detected_with) == 4
+    assert all(np.allclose(c.K, zs.K) and np.allclose(c.D, zs.D) for c in detected_with[:2])
+    assert detected_with[2] is TRUTH and detected_with[3] is TRUTH
+    assert started_from == [None, TRUTH]

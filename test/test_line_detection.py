@@ -419,3 +419,11 @@ def test_detection_in_parallel_threads_finds_the_same_curves():
                                  enumerate(images)))
     for a, b in zip(serial, parallel):
         assert len(a) == len(b) and all(np.allclose(p.points, q.points, rtol=0, atol=1e-9) for p, q in zip(a, b))
+
+
+def test_max_curves_keeps_the_longest(room, room_curves, kb_views):
+    """max_curves = N: the N longest curves of the image (longest first), not the first N found."""
+    lengths = sorted((c.length_px for c in room_curves), reverse=True)
+    assert len(lengths) > 12
+    few = detect_curves(room.image, KB, views=kb_views, max_curves=6)
+    assert [c.length_px for c in few] == pytest.approx(lengths[:6], abs=1e-9)

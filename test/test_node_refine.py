@@ -128,3 +128,37 @@ def test_a_calibration_set_while_refining_stops_the_refinement(peer, start_node,
     np.testing.assert_array_equal(CameraCalibration.load(str(url)).K.ravel(), given.k)
     assert re.search(r'refinement stopped \(collecting, [1-9]\d* frame\(s\) taken', node.log), node.log
     assert 'refined calibration adopted' not in node.log
+
+
+def test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale(peer, start_node,  # noqa: F811
+                                                                                              tmp_path, frames):
+    """refine_interval set at run time governs the running refiner at once (an hour first: one
+    frame taken, then none; 0.5 s: frames taken and a camera refined); the refined CameraInfo's P
+    is chosen by the node's balance and fov_scale, as the zero-shot one's is."""
+    from rcl_interfaces.srv import SetParameters
+    from ros_peer import parameter_msg
+    from zeroshot_calib_ros.core.ros_data.rectify import new_camera_matrix
+    node = start_node('--ros-args', *SPEC, '-p', 'refine:=true', '-p', 'refine_interval:=3600.0',
+                      '-p', 'balance:=0.5', '-p', 'fov_scale:=0.8', '-p', f'camera_info_url:=file://{tmp_path}/c.yaml')
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
+    peer.spin_until(lambda: infos and diagnostics, what='camera_info and /diagnostics')
+    zero_shot = camera_of(infos[-1])
+    np.testing.assert_allclose(np.reshape(infos[-1].p, (3, 4))[:, :3], new_camera_matrix(zero_shot, 0.5, 0.8),
+                               rtol=1e-6)
+    assert not np.allclose(new_camera_matrix(zero_shot, 0.5, 0.8), new_camera_matrix(zero_shot, 0.0, 1.0))
+    black = [np.zeros_like(frames[0])]
+    stream(peer, black, lambda: diagnostics_value(diagnostics, 'refine_frames_sampled') == '1', timeout=30)
+    deadline = time.monotonic() + 3  # the room, for longer than a refinement takes: the hour holds
+    stream(peer, frames, lambda: time.monotonic() > deadline, timeout=30)
+    assert diagnostics_value(diagnostics, 'refine_frames_sampled') == '1'
+    assert diagnostics_value(diagnostics, 'source') == 'spec'
+    request = SetParameters.Request(parameters=[parameter_msg('refine_interval', 0.5)])
+    assert peer.call(SetParameters, '/zeroshot_calib/set_parameters', request).results[0].successful
+    stream(peer, frames, lambda: diagnostics_value(diagnostics, 'source') == 'refined', timeout=60)
+    assert int(diagnostics_value(diagnostics, 'refine_frames_sampled')) >= 2
+    stream(peer, frames, lambda: list(infos[-1].k) != list(zero_shot.K.ravel()), timeout=5)
+    refined = camera_of(infos[-1])
+    np.testing.assert_allclose(np.reshape(infos[-1].p, (3, 4))[:, :3], new_camera_matrix(refined, 0.5, 0.8),
+                               rtol=1e-6)
+    assert node.alive()

@@ -308,3 +308,137 @@ def test_refined_calibration_in_the_configured_plumb_bob_model():
     assert np.max(moved) <= fit_error_px + 1e-6, (np.max(moved), fit_error_px)
     equidistant, error = refined_calibration_and_fit(refined, 1280, 720)
     assert equidistant.distortion_model == 'equidistant' and error == 0.0
+
+
+def scripted_worker(monkeypatch, script, start=None):
+    """A _Worker whose line detection records the camera it detects with and whose fit answers
+    ``script`` ((uncertainty px, accepted) per frame, camera fx = zero-shot's + frame number)."""
+    from zeroshot_calib_ros.core.estimation import refine as refine_module
+    from zeroshot_calib_ros.core.lines import detect as detect_module
+    from zeroshot_calib_ros.core.ros_data.online_refinement import _Worker
+    zs = zero_shot_camera(SPEC, 640, 360)
+    answers, detected_with = iter(script), []
+
+    def fit(spec, curves, width, height, tolerance, initial=None, solution=None):
+        u, accepted = next(answers)
+        camera = KannalaBrandtCamera(zs.fx + len(detected_with), zs.fy, zs.cx, zs.cy, 640, 360, zs.D)
+        return refine_module.Refinement(camera, accepted, 'accepted' if accepted else 'too few lines', u, 3.0,
+                                        0, 0, None, None, 0.0, 0.0, zero_shot_camera=zs)
+
+    def detect(image, camera, image_id=None, **kwargs):
+        detected_with.append(camera)
+        return []
+    monkeypatch.setattr(refine_module, 'refine_camera', fit)
+    monkeypatch.setattr(detect_module, 'detect_curves', detect)
+    worker = _Worker({'spec': SPEC, 'fov_tolerance_deg': 1.0, 'initial': None, 'max_frames': 8,
+                      'finish_after': 16, **(start or {})})
+    return worker, detected_with, zs
+
+
+def test_lines_are_detected_with_the_camera_in_force(monkeypatch):
+    """Detection looks where the camera in force puts the lines: zero-shot's until a camera is
+    offered, then the newest offered camera (not zero-shot's again)."""
+    script = [(None, False), (2.0, True), (1.9, True), (1.0, True), (None, False)]
+    worker, detected_with, zs = scripted_worker(monkeypatch, script)
+    black = np.zeros((360, 640), np.uint8)
+    offered = [worker.frame(black)['camera'] for _ in script]
+    assert [c is not None for c in offered] == [False, True, False, True, False]
+    fx = [c.fx for c in detected_with]
+    assert fx == [zs.fx, zs.fx, zs.fx + 2, zs.fx + 2, zs.fx + 4], fx  # frame 2's camera from frame 3 on, ...
+
+
+def test_lines_are_detected_with_the_initial_camera_scaled_to_the_frames(monkeypatch):
+    """A refiner started from an earlier refinement (``initial``, here at twice the frames' size)
+    detects with that camera, scaled to the frames, not with zero-shot's."""
+    from zeroshot_calib_ros.core.ros_data.online_refinement import _camera_tuple
+    initial = KannalaBrandtCamera(420.0, 420.0, 654.0, 352.0, 1280, 720, [0.02, -0.01, 0.003, -0.0005])
+    worker, detected_with, zs = scripted_worker(monkeypatch, [(None, False)] * 2,
+                                                {'initial': _camera_tuple(initial)})
+    black = np.zeros((360, 640), np.uint8)
+    worker.frame(black)
+    worker.frame(black)
+    for camera in detected_with:
+        assert (camera.width, camera.height) == (640, 360)
+        np.testing.assert_allclose([camera.fx, camera.cx, camera.cy], [210.0, 327.0, 176.0])
+
+
+def test_the_pool_is_the_newest_8_frames_and_it_finishes_16_frames_after_the_last_offer(monkeypatch):
+    """The defaults a refiner gives its worker: curves of the newest MAX_FRAMES = 8 frames pooled
+    (state insufficient once 8 frames were refused, the pool then sliding), and FINISH_AFTER = 16
+    frames without a better fit after the last offered camera finish it (not one frame sooner)."""
+    from zeroshot_calib_ros.core.ros_data import online_refinement
+    assert (online_refinement.MAX_FRAMES, online_refinement.FINISH_AFTER) == (8, 16)
+    sink = [sys.executable, '-c', 'import sys; sys.stdin.buffer.read()']
+    refiner = OnlineRefiner(SPEC, command=sink)
+    try:
+        start = dict(refiner._start_message)
+    finally:
+        refiner.stop()
+    script = [(None, False)] * 9 + [(2.0, True)] + [(1.9, True)] * 16
+    worker, _, _ = scripted_worker(monkeypatch, script, start)
+    black = np.zeros((360, 640), np.uint8)
+    got = [worker.frame(black)['status'] for _ in script]
+    assert [s['frames_used'] for s in got[:10]] == [1, 2, 3, 4, 5, 6, 7, 8, 8, 8]
+    assert [s['state'] for s in got[:9]] == ['collecting'] * 7 + ['insufficient'] * 2
+    assert got[9]['state'] == 'refined' and got[9]['cameras_offered'] == 1
+    assert [s['finished'] for s in got[10:]] == [False] * 15 + [True]
+    assert got[-1]['reason'].startswith('finished: 16 frames since the camera in use')
+
+
+HELD_WORKER = r'''
+import dataclasses, os, sys, time
+from zeroshot_calib_ros.core.ros_data.online_refinement import RefineStatus, _read_exactly, _receive, _send
+gate, stdin, out = sys.argv[1], sys.stdin.buffer, sys.stdout.buffer
+_receive(stdin)
+n = 0
+while True:
+    header = _receive(stdin)
+    if header is None:
+        break
+    _read_exactly(stdin, header['nbytes'])
+    n += 1
+    while not os.path.exists(gate + str(n)):  # busy with frame n until the test releases it
+        time.sleep(0.01)
+    _send(out, {'status': dataclasses.asdict(RefineStatus('collecting', 'held', 0, n)), 'camera': None})
+'''
+
+
+class Untouchable:
+    """A frame whose pixels must not be read: offering it counts reads of its array."""
+
+    def __init__(self):
+        self.reads = 0
+
+    def __array__(self, dtype=None, copy=None):
+        self.reads += 1
+        return np.zeros((360, 640), np.uint8)
+
+
+def test_frames_offered_while_the_worker_is_busy_are_dropped_uncopied_and_uncounted(refiner_factory, tmp_path):
+    """While the worker has a frame, later frames are not kept, whatever the interval: not
+    copied (their pixels not even read), not counted in frames_kept (the node's
+    refine_frames_sampled); once it answers, the next due frame is kept."""
+    gate = str(tmp_path / 'done-')
+    refiner = refiner_factory(SPEC, interval=0.5, command=[sys.executable, '-c', HELD_WORKER, gate])
+    assert refiner.offer(np.zeros((360, 640), np.uint8), 0.0)
+    late = Untouchable()
+    for t in (1.0, 2.0, 5.0, 100.0):
+        assert not refiner.due(t)
+        assert not refiner.offer(late, t)
+    assert late.reads == 0 and refiner.status.frames_kept == 1
+    open(gate + '1', 'w').close()
+    wait_for(lambda: refiner.status.frames_processed == 1, 20, 'the held frame to be answered')
+    assert refiner.due(100.0) and refiner.offer(late, 100.0) and late.reads == 1
+    assert refiner.status.frames_kept == 2
+    open(gate + '2', 'w').close()  # let the stand-in worker answer and exit
+
+
+def test_the_refined_record_chooses_p_by_balance_and_fov_scale():
+    """The ROS record of a refined camera: P is the rectified camera chosen by balance and
+    fov_scale (as a zero-shot record's), at the record's size."""
+    from zeroshot_calib_ros.core.ros_data.rectify import new_camera_matrix
+    for balance, fov_scale in ((0.0, 1.0), (0.5, 1.0), (0.0, 0.8), (1.0, 1.3)):
+        record = refined_calibration(TRUE, 1280, 720, balance, fov_scale)
+        np.testing.assert_allclose(record.P[:, :3], new_camera_matrix(TRUE.scaled(1280, 720), balance, fov_scale))
+        np.testing.assert_array_equal(record.P[:, 3], 0.0)
+    assert not np.allclose(refined_calibration(TRUE, 640, 360, 0.5, 0.8).P, refined_calibration(TRUE, 640, 360).P)

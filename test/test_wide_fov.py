@@ -357,3 +357,20 @@ def test_broken_ground_truths_are_excluded_with_a_reason(sample_records):
     assert broken, 'the first 400 profiles contain non-monotonic calibrations'
     record = bench.evaluate_profile(broken[0])
     assert record.excluded and 'monotonic' in record.excluded + record.excluded_detail and not record.rms
+
+
+def test_a_law_asked_for_is_the_law_given_or_an_error_naming_why():
+    """'wide-<law>' fixes the law: the solution has that law, or a SpecError names the law asked
+    for as the one that cannot meet the spec (and which law can); never another law silently.
+    1920 x 1080, 200 x 190 degrees: only a stereographic lens of the family meets both."""
+    spec = CameraSpec(W, H, hfov=200, vfov=190)
+    assert solve_zero_shot(spec).projection.name == 'wide-stereographic'  # the law is free: whichever can
+    assert solve_zero_shot(spec, 'wide-stereographic').projection.name == 'wide-stereographic'
+    for law in ('equidistant', 'equisolid'):
+        with pytest.raises(SpecError) as excinfo:
+            solution = solve_zero_shot(spec, f'wide-{law}')
+            pytest.fail(f'wide-{law} gave {solution.projection.name}')
+        message = str(excinfo.value)
+        assert excinfo.value.field == 'vfov' and '\n' not in message, message
+        assert f'no {law} lens' in message, message  # the law asked for, not all three
+        assert 'wide-stereographic' in message, message  # what the user can choose instead

@@ -205,10 +205,15 @@ def solve_wide(spec: CameraSpec, law: Optional[str] = None) -> WideFit:
             # The default law cannot meet the pair: any law that can is better than none.
             candidates = _pair_candidates([PROJECTIONS[n] for n in WIDE_LAWS], outer, inner)
         if not candidates:
+            # Name the laws tried; a law asked for is never replaced by another, but the error says which can.
+            tried = [lw.name for lw in laws] if law is not None else list(WIDE_LAWS)
+            others = [f'{WIDE}-{n}' for n in WIDE_LAWS if n not in tried and
+                      _pair_candidates([PROJECTIONS[n]], outer, inner)]
             raise SpecError(pair[1].name if pair[1].name != 'circle' else 'circle_fov', pair[1].fov,
                             f'a value that a lens of the wide model can pair with {pair[0].name} = '
-                            f'{pair[0].fov:g} degrees',
-                            f'no equidistant/equisolid/stereographic lens continued in angle space '
+                            f'{pair[0].fov:g} degrees' + (f" (or projection {' / '.join(others)} or '{WIDE}')"
+                                                          if others else ''),
+                            f"no {'/'.join(tried)} lens continued in angle space "
                             f'puts {pair[0].fov:g} degrees across {2 * pair[0].radius:g} px and '
                             f'{pair[1].fov:g} degrees across {2 * pair[1].radius:g} px')
     extra = [c for c in constraints if c not in pair]
