@@ -414,8 +414,8 @@ MUTANTS = [
     dict(
         id='cli-json-warning-dropped',
         file=f'{PKG}/cli.py',
-        old="    summary['warning'] = warnings\n",
-        new="    summary['warning'] = []\n",
+        old="    warnings += _add_uncertainty(summary, spec, solution, args.fov_tolerance)\n    summary['warning'] = warnings\n",
+        new="    warnings += _add_uncertainty(summary, spec, solution, args.fov_tolerance)\n    summary['warning'] = []\n",
         behaviour='solve --json: warning is the list of one-line warnings ([] when none)',
         tests=['test/test_cli.py', 'test/test_readme.py', '-k', 'warning or json'],
     ),
@@ -674,10 +674,8 @@ MUTANTS = [
     dict(
         id='node-set-camera-info-success-although-not-saved',
         file=f'{ROS}/node.py',
-        old=("""            saved = f' but NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'\n"""
-             '            response.success = False'),
-        new=("""            saved = f' but NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'\n"""
-             '            response.success = True'),
+        old="""            return False, f' but NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'""",
+        new="""            return True, f' but NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'""",
         behaviour='set_camera_info: success means adopted and saved; adopted but not saved answers success: false',
         tests=['test/test_readme_claims_ros.py::test_set_camera_info_adopted_but_not_saved_answers_false_and_says_so'],
     ),
@@ -850,10 +848,8 @@ MUTANTS = [
     dict(
         id='node-refined-p-ignores-balance-and-fov-scale',
         file=f'{ROS}/node.py',
-        old=("            calibration = refined_calibration(result.camera, width, height, settings.balance, settings.fov_scale,\n"
-             "                                              settings.camera_name)"),
-        new=("            calibration = refined_calibration(result.camera, width, height,\n"
-             "                                              camera_name=settings.camera_name)"),
+        old="                result.camera, width, height, settings.balance, settings.fov_scale, settings.camera_name,\n",
+        new="                result.camera, width, height, 0.0, 1.0, settings.camera_name,\n",
         behaviour='refine: the refined CameraInfo\'s P is chosen by balance and fov_scale, as the zero-shot one\'s',
         tests=['test/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
     ),
