@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from zeroshot_calib_ros.cli import main
+from cli_run import run_main
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get('ZEROSHOT_SHARED_DATA', REPO.parent / 'shared' / 'data')) / 'ros_fisheye_800x503'
@@ -24,13 +24,6 @@ RIGHT_SPEC = ['--hfov', '180.8', '--vfov', '103.5']
 """The FOVs of the authors' calibration (ost.yaml read as Kannala-Brandt): 180.81 x 103.52 degrees."""
 
 
-def run_main(args, capsys):
-    try:
-        status = main(args)
-    except SystemExit as exc:
-        status = exc.code
-    captured = capsys.readouterr()
-    return status, captured.out, captured.err.strip().splitlines()
 
 
 def calibrate_json(capsys, *args):

@@ -12,6 +12,7 @@ import pytest
 import yaml
 
 from paper_table2 import load_table2
+from cli_run import run_main
 from zeroshot_calib_ros.cli import main
 
 SUMMARY_KEYS = {'width', 'height', 'model', 'omega', 'f', 'cx', 'cy', 'K', 'distortion_model', 'D',
@@ -93,14 +94,6 @@ def test_errors_exit_2_with_one_line_and_no_traceback(args, message):
 HERO9 = 'w1,1920,1080,118,69,\n'  # the paper's Table 2: f = 876.0 px for the GoPro HERO9 (W1)
 
 
-def run_main(args, capsys):
-    """(exit status, stdout, stderr lines) of main(args) in-process; argparse exits included."""
-    try:
-        status = main(args)
-    except SystemExit as exc:
-        status = exc.code
-    captured = capsys.readouterr()
-    return status, captured.out, captured.err.strip().splitlines()
 
 
 def one_line_error(status, err, *words):

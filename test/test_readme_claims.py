@@ -21,7 +21,8 @@ from scipy.optimize import brentq
 
 from opencv_reference import textured_image
 from paper_table2 import load_table2
-from zeroshot_calib_ros.cli import build_parser, main
+from cli_run import run_main
+from zeroshot_calib_ros.cli import build_parser
 from zeroshot_calib_ros.core import (PROJECTIONS, CameraCalibration, CameraInfoModel, CameraSpec,
                                      KannalaBrandtCamera, PinholeCamera, PlumbBobCamera, Rectifier,
                                      ZeroShotCamera, solve_zero_shot)
@@ -57,13 +58,6 @@ def markdown_rows(text):
     return rows
 
 
-def run_main(args, capsys):
-    try:
-        status = main(args)
-    except SystemExit as exc:
-        status = exc.code
-    captured = capsys.readouterr()
-    return status, captured.out, captured.err.strip().splitlines()
 
 
 def solve_json(capsys, *args):
