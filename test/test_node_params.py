@@ -117,6 +117,11 @@ def test_ctrl_c_at_any_moment_ends_without_a_traceback(tmp_path, delay):
     time.sleep(delay)
     process.send_signal(signal.SIGINT)
     output, _ = process.communicate(timeout=30)
+    if output.startswith('Fatal Python error: init_import_site'):
+        # On a loaded machine 0.05 s can fall inside the interpreter's own start-up (its site
+        # import), before any line of the program runs: no program can catch that.
+        assert delay <= 0.05, output
+        return
     assert 'Traceback' not in output and 'KeyboardInterrupt' not in output, output
     assert process.returncode == 0, (process.returncode, output)
 
@@ -175,9 +180,11 @@ def test_a_restarted_refiner_does_not_readopt_a_fit_that_is_not_better(peer, sta
     assert all(r.successful for r in set_parameters(peer, refine=False))
     assert all(r.successful for r in set_parameters(peer, refine=True))
     # the same frames again: the new refiner's fits are no better than the calibration in force
-    deadline = time.monotonic() + 12
-    stream(peer, frames, lambda: time.monotonic() > deadline, timeout=30)
-    assert int(diagnostics_value(diagnostics, 'refine_frames')) >= 3, diagnostics_value(diagnostics, 'refine_frames')
+    # (until it has fitted 3 frames, however long a loaded machine takes)
+    diagnostics.clear()
+    peer.spin_until(lambda: diagnostics and diagnostics_value(diagnostics, 'refine_frames') == '0', timeout=10,
+                    what="the new refiner's diagnostics")
+    stream(peer, frames, lambda: int(diagnostics_value(diagnostics, 'refine_frames')) >= 3, timeout=120)
     assert diagnostics_value(diagnostics, 'generation') == generation
     assert url.read_text() == saved
     assert node.log.count('refined calibration adopted') == 1, node.log

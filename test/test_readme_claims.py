@@ -289,11 +289,14 @@ def test_every_model_choice_solves_as_that_model(capsys, tmp_path):
 
 def test_calibrate_prints_the_fit_warning_as_solve_does(tmp_path, capsys):
     """README: "When the fitted ROS model is off by more than 0.5 px anywhere in the image, `solve`
-    and `calibrate` print one warning line on stderr and put it in the JSON's `warning`". A ~150
+    and `calibrate` print one warning line on stderr and put it in the JSON's `warning`". A ~135
     degree lens calibrated from corners, written as plumb_bob: its D through cv2.projectPoints
     misses the calibrated camera by more than 0.5 px (checked here), and the warning says so;
-    written as equidistant (cv2.fisheye: far below 0.5 px) there is none."""
-    from test_calibration import TRUE, synthetic_corners
+    written as equidistant (cv2.fisheye: far below 0.5 px) there is none. The lens sees below 90
+    degrees off-axis everywhere (67 at the image corners), which plumb_bob can represent at all
+    (beyond that, calibrate refuses plumb_bob)."""
+    from test_calibration import H, W, synthetic_corners
+    TRUE = ZeroShotCamera(380.0, 404.0, 258.0, W, H, 0.9 / 380.0)
     corners = tmp_path / 'corners.json'
     synthetic_corners(TRUE, 6, noise=0.1, seed=12).save(str(corners))
     status, out, err = run_main(['calibrate', '--corners', str(corners), '--distortion-model', 'plumb_bob',

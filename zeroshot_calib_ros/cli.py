@@ -625,6 +625,11 @@ def _debug_image(images, result, solution, args):
     return np.vstack([top.astype(np.uint8), bottom[:, :width].astype(np.uint8)])
 
 
+MIN_REFINE_IMAGE_SIDE = 32
+"""Smaller images hold no line long enough to measure a lens by (and their camera would be refused
+as implausible, without naming the image)."""
+
+
 def _cmd_refine(args):
     from .core.estimation.refine import refine_from_images  # scipy.optimize: only when asked
     if args.debug_image:
@@ -642,6 +647,9 @@ def _cmd_refine(args):
             seen[key] = digest
             continue
         seen[key] = digest
+        if min(image.shape[:2]) < MIN_REFINE_IMAGE_SIDE:
+            raise CliError(f'{path} is {image.shape[1]}x{image.shape[0]}: allowed: images at least '
+                           f'{MIN_REFINE_IMAGE_SIDE} px wide and high (lines to straighten need room)')
         images.append(image)
     sizes = sorted({(im.shape[1], im.shape[0]) for im in images})
     if len(sizes) != 1:

@@ -12,10 +12,12 @@ import os
 import stat
 import struct
 import tempfile
-from typing import Optional, Tuple
+from typing import Iterator, Optional, Tuple
 
-import cv2
 import numpy as np
+
+# cv2 is imported where an image is decoded: the node reads its calibration file through this
+# module at start-up and loads OpenCV only once it rectifies (its first CameraInfo comes sooner).
 
 MAX_IMAGE_PIXELS = 50_000_000
 """Largest image read (width x height): 50 megapixels (8K video is 33, a 45 Mpx camera's photo 45)."""
@@ -90,42 +92,43 @@ def image_header_size(data: bytes) -> Optional[Tuple[int, int]]:
     return None
 
 
-def _jpeg_size(data: bytes) -> Optional[Tuple[int, int]]:
+def _jpeg_segments(data: bytes) -> Iterator[Tuple[int, int]]:
+    """(marker, offset of its 0xff) of each segment of a JPEG from its start up to and including
+    the start of scan; ValueError where the data is not a segment."""
     i = 2
     while i + 4 <= len(data):
         if data[i] != 0xff:
-            return None
+            raise ValueError('not a JPEG segment')
         marker = data[i + 1]
-        if marker == 0xff:
+        if marker == 0xff:  # fill byte
             i += 1
             continue
-        if marker in (0xd8, 0x01) or 0xd0 <= marker <= 0xd7:
+        yield marker, i
+        if marker == 0xda:
+            return
+        if marker in (0xd8, 0x01) or 0xd0 <= marker <= 0xd7:  # markers without a length
             i += 2
             continue
-        length = struct.unpack('>H', data[i + 2:i + 4])[0]
-        if 0xc0 <= marker <= 0xcf and marker not in (0xc4, 0xc8, 0xcc):
+        i += 2 + struct.unpack('>H', data[i + 2:i + 4])[0]
+
+
+def _jpeg_size(data: bytes) -> Optional[Tuple[int, int]]:
+    for marker, i in _jpeg_segments(data):
+        if 0xc0 <= marker <= 0xcf and marker not in (0xc4, 0xc8, 0xcc):  # a start of frame
             height, width = struct.unpack('>HH', data[i + 5:i + 9])
             return width, height
-        if marker == 0xda:
-            return None
-        i += 2 + length
     return None
 
 
 def _jpeg_complete(data: bytes) -> bool:
     """Whether a JPEG has its end-of-image marker after the start of its scan data (segments
     walked from the start, so an EXIF thumbnail's end marker does not count)."""
-    i = 2
-    while i + 4 <= len(data):
-        if data[i] != 0xff:
-            return False
-        marker = data[i + 1]
-        if marker == 0xff:
-            i += 1
-            continue
-        if marker == 0xda:
-            return b'\xff\xd9' in data[i + 2:]
-        i += 2 + struct.unpack('>H', data[i + 2:i + 4])[0]
+    try:
+        for marker, i in _jpeg_segments(data):
+            if marker == 0xda:
+                return b'\xff\xd9' in data[i + 2:]
+    except (ValueError, struct.error):
+        return False
     return False
 
 
@@ -162,6 +165,7 @@ def _tiff_size(data: bytes) -> Optional[Tuple[int, int]]:
 def _decode_checked(path: str, data: bytes, flags: int):
     """cv2.imdecode, with what libjpeg writes to stderr about corrupt data caught (OpenCV
     decodes such a JPEG anyway, with grey or shifted blocks)."""
+    import cv2
     buffer = np.frombuffer(data, np.uint8)
     if data[:2] != b'\xff\xd8':
         return cv2.imdecode(buffer, flags), ''
@@ -178,11 +182,13 @@ def _decode_checked(path: str, data: bytes, flags: int):
     return image, ' '.join(text.split())
 
 
-def read_image(path, flags: int = cv2.IMREAD_UNCHANGED, finite: bool = False):
+def read_image(path, flags: int = -1, finite: bool = False):
     """(image, sha1 of the file) of the image file ``path``: a regular file of at most
     MAX_IMAGE_FILE_BYTES, declaring at most MAX_IMAGE_PIXELS in its header (checked before
     decoding), decoded completely (a JPEG without its end marker or with corrupt data is refused);
-    with ``finite``, a float image holding NaN or infinity is refused. InputFileError otherwise."""
+    with ``finite``, a float image holding NaN or infinity is refused. InputFileError otherwise.
+    ``flags``: cv2.imdecode's (default -1, cv2.IMREAD_UNCHANGED)."""
+    import cv2
     path = os.fspath(path)
     allowed = f'an image file of at most {_BUDGET_TEXT}'
     try:
