@@ -149,3 +149,48 @@ def test_plumb_bob_where_it_can_represent_the_lens_reports_a_real_fit_error(tmp_
                                    '--distortion-model', 'plumb_bob')
         assert record['distortion_model'] == 'plumb_bob'
         assert math.isfinite(record['fit_error_px']) and any(d != 0 for d in record['D'])
+
+
+class _LinearLayout:
+    """A 'camera' that is the parameter vector itself: the costs below have closed forms."""
+
+    def camera(self, x):
+        return np.asarray(x, float)
+
+    def steps(self, x):
+        return np.full(len(x), 1e-6)
+
+
+class _Offset:
+    """Residuals camera - target (a Gaussian term), as corner and FOV terms present them."""
+    group, loss, loss_scale = 1, None, 1.0
+
+    def __init__(self, name, target, sigma=1.0, keys=None):
+        self.name, self.target, self.sigma = name, np.asarray(target, float), sigma
+        self.keys = keys
+
+    def residuals(self, camera):
+        return camera - self.target
+
+
+@pytest.mark.parametrize('keys', [('hfov', 'vfov'), ('dfov',)])
+@pytest.mark.parametrize('ratio', [25.5, 40.0])
+def test_the_contradiction_statistic_is_the_likelihood_ratio_against_its_chi2_quantile(keys, ratio):
+    """Wilks' test as the docstring states it, on a problem with closed-form costs: corners at a,
+    the spec at b with tolerance s: the best cost without the spec is 0, with it
+    |a - b|^2 / (2 (1 + s^2)), so the ratio (twice the difference) is |a - b|^2 / (1 + s^2); the
+    threshold is the chi^2 quantile 1 - 1e-6 for one degree per FOV: 2 ln(1e6) = 27.63 for two
+    FOVs (closed form), 23.93 for one. A ratio of 25.5 contradicts one FOV but not two."""
+    from zeroshot_calib_ros.core.estimation.board_fit import spec_contradiction
+    from zeroshot_calib_ros.core.estimation.problem import Problem
+    n, tolerance = len(keys), 5.0
+    a = np.zeros(n)
+    b = np.full(n, math.sqrt(ratio * (1 + tolerance ** 2) / n))
+    fov = _Offset('fov', b, sigma=1.0, keys=keys)
+    problem = Problem(_LinearLayout(), [_Offset('corners', a), fov])
+    got, threshold = spec_contradiction(problem, np.zeros(n), fov, tolerance)
+    assert got == pytest.approx(ratio, rel=1e-6)
+    assert threshold == pytest.approx(2 * math.log(1e6) if n == 2 else 23.928, abs=1e-3)
+    assert fov.sigma == 1.0  # the MAP's own FOV term is left as it was
+    contradicted = got > threshold
+    assert contradicted == (ratio == 40.0 or n == 1)

@@ -481,3 +481,15 @@ def test_cli_errors_are_one_line_with_exit_code_2(corners_file, tmp_path, capsys
     err = capsys.readouterr().err.strip()
     assert err.startswith('zeroshot-calib: error: ') and '\n' not in err
     assert __import__('re').search(message, err), err
+
+
+def test_a_duplicate_among_the_views_chosen_counts_once_whatever_the_subset():
+    """A fit of some of the images (evaluate's shots, calibrate(views=...)) where one chosen view
+    is a copy of another: the copy is left out and every distinct view stays, for subsets where
+    a view's number and its position among the chosen differ."""
+    from zeroshot_calib_ros.core.checkerboard.corners import check_corner_set
+    corners = synthetic_corners(TRUE, 5, noise=0.1, seed=4)
+    corners.corners[3] = corners.corners[1] + 0.01  # view 3 is a copy of view 1
+    for views, kept in [([1, 3, 4], (1, 4)), ([0, 1, 3], (0, 1)), ([3, 1, 2], (3, 2)), ([0, 2, 4], (0, 2, 4))]:
+        report = check_corner_set(corners, views)
+        assert report.distinct(views) == kept, (views, report.positions)

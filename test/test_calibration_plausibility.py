@@ -36,6 +36,12 @@ ABSURD = {
     'fy 1e300': (record(K=with_entry(K, 1, 1, 1e300)), ['K (camera_matrix) fy', '10.8 to 1.92e+08']),
     'D 1e300': (record(D=[0.05, 1e300, 0.0, 0.0]), ['D (distortion_coefficients) [1]', 'allowed: -', 'rho = ']),
     'skew 1e9': (record(K=with_entry(K, 0, 1, 1e9)), ['K (camera_matrix) skew', 'at most 0.1 x fx']),
+    'skew -1e9': (record(K=with_entry(K, 0, 1, -1e9)), ['K (camera_matrix) skew', 'in magnitude']),
+    # the principal point near the top-left corner: D is bounded at the FARTHEST corner (1920x1080,
+    # rho 2.35: k4 at most 1e6 / rho^8 = 1.08e3), not at the nearest (rho 0.16, which allows ~2e12)
+    'D k4 1e4, cx, cy 100': (record(K=[[880.0, 0.0, 100.0], [0.0, 880.0, 100.0], [0.0, 0.0, 1.0]],
+                                    D=[0.0, 0.0, 0.0, 1e4]),
+                             ['D (distortion_coefficients) [3]', 'allowed: -1.08e+03', 'rho = 2.35']),
     'cx 1e12': (record(K=with_entry(K, 0, 2, 1e12)), ['K (camera_matrix) cx', '-1920 to 3840']),
     'cy -2e3': (record(K=with_entry(K, 1, 2, -2e3)), ['K (camera_matrix) cy', '-1080 to 2160']),
     'R 5 I': (record(R=5 * np.eye(3)), ['R (rectification_matrix)', 'a rotation', 'det(R) = +1']),

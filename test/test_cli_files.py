@@ -136,6 +136,21 @@ def test_solve_batch_that_is_not_a_regular_file_of_a_sane_size(tmp_path, kind):
     assert seconds < 20
 
 
+@pytest.mark.parametrize('kind', ['device', 'fifo', 'directory'])
+def test_read_capped_refuses_what_is_not_a_regular_file_without_reading_it(tmp_path, kind):
+    """Every file input goes through read_capped: a device, a FIFO or a directory is named as such
+    and refused before a byte is read (a device read up to the cap would take seconds and memory,
+    a FIFO without a writer would block)."""
+    from zeroshot_calib_ros.core.file_input import InputFileError, read_capped
+    path = {'device': Path('/dev/zero'), 'fifo': _fifo(tmp_path, 'x.yaml'), 'directory': tmp_path}[kind]
+    start = time.monotonic()
+    with pytest.raises(InputFileError) as info:
+        read_capped(path, 256 << 20, 'a calibration file')
+    words = {'device': 'a device', 'fifo': 'a FIFO', 'directory': 'a directory'}[kind]
+    assert str(info.value) == f'cannot read {path}: it is {words}, not a regular file: allowed: a calibration file'
+    assert time.monotonic() - start < 0.5
+
+
 @pytest.mark.parametrize('kind', ['device', 'fifo'])
 def test_calibration_and_image_inputs_that_are_not_regular_files(tmp_path, kind):
     calibration = _special_files(tmp_path, 'cam.yaml', 0)[kind]

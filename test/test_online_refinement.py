@@ -442,3 +442,16 @@ def test_the_refined_record_chooses_p_by_balance_and_fov_scale():
         np.testing.assert_allclose(record.P[:, :3], new_camera_matrix(TRUE.scaled(1280, 720), balance, fov_scale))
         np.testing.assert_array_equal(record.P[:, 3], 0.0)
     assert not np.allclose(refined_calibration(TRUE, 640, 360, 0.5, 0.8).P, refined_calibration(TRUE, 640, 360).P)
+
+
+def test_refined_plumb_bob_keeps_a_camera_whose_pixels_are_not_square():
+    """A refined lens with fx != fy (non-square pixels, or a camera whose rows are binned): the
+    plumb_bob record keeps both focal lengths and reproduces the lens within its stated error."""
+    from zeroshot_calib_ros.core.ros_data.online_refinement import refined_calibration_and_fit
+    narrow = zero_shot_camera(CameraSpec(1280, 720, hfov=70.42, vfov=43.3), 1280, 720)
+    refined = KannalaBrandtCamera(narrow.fx, narrow.fx * 1.03, 641.0, 357.0, 1280, 720, narrow.D)
+    record, fit_error_px = refined_calibration_and_fit(refined, 1280, 720, distortion_model='plumb_bob')
+    np.testing.assert_allclose(record.K, refined.K)
+    pixels = np.stack(np.meshgrid(np.linspace(0, 1279, 33), np.linspace(0, 719, 19)), -1).reshape(-1, 2)
+    moved = np.linalg.norm(record.camera().project(refined.unproject(pixels)) - pixels, axis=-1)
+    assert fit_error_px < 0.5 and np.max(moved) <= fit_error_px + 1e-6, (np.max(moved), fit_error_px)

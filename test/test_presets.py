@@ -138,6 +138,8 @@ def test_a_preset_at_another_aspect_ratio_is_refused_everywhere(tmp_path, capsys
         spec_with_preset('gopro_hero9_wide', width=1440, height=1080)
     with pytest.raises(SpecError, match='1920x1080'):
         spec_with_preset('gopro_hero9_wide', width=1440)
+    with pytest.raises(SpecError, match='1920x1080'):
+        spec_with_preset('gopro_hero9_wide', height=1440)
     assert spec_with_preset('gopro_hero9_wide', width=1280, height=720).hfov == 118.0
     values = {name: parameter.default for name, parameter in PARAMETERS.items()}
     values.update(preset='gopro_hero9_wide', width=1440, height=1080)

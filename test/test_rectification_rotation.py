@@ -91,3 +91,26 @@ def test_cli_rectify_with_a_rotated_calibration_is_opencvs(tmp_path, model):
     assert np.abs(ours - reference)[inside].max() <= 2
     unrotated = cv2.remap(image, *opencv_maps(calibration(model, np.eye(3))), cv2.INTER_LINEAR).astype(float)
     assert np.abs(unrotated - reference)[inside].mean() > 10
+
+
+@pytest.mark.parametrize('model', CALIBRATIONS)
+def test_cli_rectify_with_a_rotated_calibration_and_a_chosen_p_keeps_r(tmp_path, model):
+    """--balance / --fov-scale choose another P for a calibration file; its R still applies
+    (image_proc with that P would rotate the same way)."""
+    from zeroshot_calib_ros.core.ros_data.rectify import new_camera_matrix
+    cal = calibration(model)
+    cal_path = tmp_path / 'cal.yaml'
+    cal.save(str(cal_path))
+    src, dst = tmp_path / 'raw.png', tmp_path / 'rect.png'
+    image = smooth_image()
+    cv2.imwrite(str(src), image)
+    assert main(['rectify', str(src), '-o', str(dst), '--calibration', str(cal_path), '--balance', '0.3',
+                 '--fov-scale', '1.0']) == 0
+    ours = cv2.imread(str(dst), cv2.IMREAD_UNCHANGED).astype(float)
+    P = new_camera_matrix(cal.camera(), 0.3, 1.0)
+    init = cv2.fisheye.initUndistortRectifyMap if model == 'equidistant' else cv2.initUndistortRectifyMap
+    mx, my = init(cal.K, cal.D, cal.R, P, (cal.width, cal.height), cv2.CV_32FC1)
+    reference = cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).astype(float)
+    inside = (mx > 1) & (mx < 1278) & (my > 1) & (my < 718)
+    assert inside.mean() > 0.5
+    assert np.abs(ours - reference)[inside].max() <= 2
