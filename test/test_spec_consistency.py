@@ -256,3 +256,14 @@ def test_cli_calibrate_warns_about_the_spec(tmp_path, capsys):
         status, out, err = run_main(['calibrate', '--corners', str(tmp_path / 'corners.json'), *honest,
                                      '--spec-as', spec_as, '--json'], capsys)
         assert status == 0 and not any('do not fit' in w for w in json.loads(out)['warning']), spec_as
+
+
+def test_the_documented_consistency_lines_are_what_solve_prints(capsys):
+    from pathlib import Path
+    readme = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
+    documented = re.findall(r'e\.g\. for\s+`solve ([^`]*)`:\s*`(zeroshot-calib: (error|warning): [^`]*)`', readme)
+    assert any('look swapped' in line for _, line, _ in documented)
+    assert any('the FOVs do not fit' in line for _, line, _ in documented)
+    for command, line, kind in documented:
+        status, _, err = run_main(['solve', *command.split()], capsys)
+        assert status == (2 if kind == 'error' else 0) and err == [line], (command, err)

@@ -15,21 +15,24 @@ solving (``CameraSpec``); here are the ones a camera can be solved from, but tha
   ``spec.FOV_TOLERANCE_DEG``, 1 degree; the CLI's ``--fov-tolerance``);
 - a FOV beside them, missed by more than ``max(tolerance, EXTRA_FOV_WARNING_DEG)``.
 
-Why these thresholds (measured while choosing them):
+Why these thresholds (benchmarks/spec_consistency.py, results in
+benchmarks/results/spec_consistency.md):
 
 - Rounding. A spec sheet prints whole degrees (+-0.5). Distortion-free and barrel-distorted
-  cameras (equidistant w from 0 to 0.999 of its limit, hfov 10 to 170 degrees, nine sizes from
-  848x800 to 4608x2592), with hfov and vfov each off by 0 or +-0.5 degree in every combination:
-  the solved camera misses a FOV by at most 0.82 degree (a 169-degree pinhole; at most 0.58 in
-  99 % of the 58,000 cases). So 1 degree never warns about a sheet's rounding.
-- Real lenses. The 4,619 usable calibrations of ../shared/data/lens_profiles_dev.csv, their
+  cameras (equidistant w from 0 to 0.9 of the value that puts the image corner 90 degrees
+  off-axis, hfov 20 to 170 degrees, nine image sizes from 672x376 to 4608x2592), hfov and vfov
+  each moved by -0.5, 0 or +0.5 degree in all nine combinations (11,657 specs): the solved camera
+  misses a given FOV by at most 0.82 degree (a 170-degree pinhole; 0.59 at the 99th percentile).
+  So 1 degree never warns about a sheet's rounding.
+- Real lenses. The 4,626 usable calibrations of ../shared/data/lens_profiles_dev.csv, their
   implied FOVs rounded to whole degrees as the spec: hfov + vfov are missed by more than 1 degree
-  for 81 (1.8 %; 70 already with the exact FOVs: lenses with fx != fy or digitally corrected
-  images, whose FOVs the square-pixel model misses indeed); the diagonal beside them by more
-  than 1 degree for 26 %, 5 degrees 2.9 %, 15 degrees 1.3 %. A sheet's diagonal is the least
-  reliable of the three (often quoted for another mode, or the lens's image circle) and here it
-  chooses the projection only, so only a miss beyond 15 degrees is warned about (the published
-  Raspberry Pi Camera Module 3 Wide, 102 x 67 x 120 degrees: 9.1).
+  for 81 (1.8 %; 70 with the exact FOVs: lenses with fx != fy or digitally corrected images,
+  whose FOVs the square-pixel model does miss); the diagonal beside them by more than 1 degree
+  for 26 %, 5 degrees 2.9 %, 15 degrees 1.3 %. A sheet's diagonal is the least reliable of the
+  three (often quoted for another mode, or the lens's image circle) and here it only chooses the
+  projection, so only a miss beyond 15 degrees is warned about (the published Raspberry Pi Camera
+  Module 3 Wide, 102 x 67 x 120 degrees, is missed by 9.1; the Luxonis OAK-D LR, 82 x 56 x 100,
+  by 7.8).
 """
 from __future__ import annotations
 
