@@ -285,5 +285,5 @@ def test_a_spec_whose_fovs_the_camera_misses_is_warned_at_start_up_on_a_change_a
                         name='turned')
     assert turned.wait(30) == 2
     lines = turned.log.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith('zeroshot_calib: error: width x height = ') and \
+    assert len(lines) == 1 and lines[0].startswith('zeroshot_calib: error: width, height = ') and \
         'width and height look swapped' in lines[0], turned.log

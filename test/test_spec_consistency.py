@@ -21,7 +21,7 @@ from zeroshot_calib_ros.core.zeroshot.presets import load_presets
 from zeroshot_calib_ros.core.zeroshot.spec import FOV_TOLERANCE_DEG
 
 SWAPPED = {  # spec -> (field, what the error says)
-    (1080, 1920, 118, 69): ('width x height', 'width and height look swapped'),
+    (1080, 1920, 118, 69): ('width, height', 'width and height look swapped'),
     (1920, 1080, 69, 118): ('vfov', 'hfov and vfov look swapped'),
 }
 CONTRADICTORY = {  # spec -> (hfov, vfov) of the solved camera, as printed (solve's FOV line)

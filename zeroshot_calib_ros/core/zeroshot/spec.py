@@ -95,7 +95,7 @@ def _check_not_swapped(spec: 'CameraSpec'):
     if hfov is None or vfov is None or w == h or (hfov > vfov) == (w > h) or hfov == vfov:
         return
     if w < h:  # a portrait size with landscape FOVs: the size is the likelier slip
-        raise SpecError('width x height', f'{w}x{h}', f'{h}x{w}, or vfov greater than hfov for a {w}x{h} image',
+        raise SpecError('width, height', f'{w}x{h}', f'{h}x{w}, or vfov greater than hfov for a {w}x{h} image',
                         f'width and height look swapped: hfov {hfov:g} > vfov {vfov:g} degrees needs the wider '
                         f'side horizontal (a lens sees the wider angle across the longer side), and {w}x{h} is '
                         'taller than wide (for a camera turned 90 degrees, swap hfov and vfov instead)')
