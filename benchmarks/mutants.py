@@ -430,8 +430,8 @@ MUTANTS = [
     dict(
         id='cli-method-newton-ignored',
         file=f'{PKG}/cli.py',
-        old="    solution = solve_zero_shot(spec, args.model, getattr(args, 'method', 'bracketed'))",
-        new='    solution = solve_zero_shot(spec, args.model)',
+        old="    solution = solve_zero_shot(spec, args.model, getattr(args, 'method', 'bracketed'), args.fov_tolerance)",
+        new='    solution = solve_zero_shot(spec, args.model, fov_tolerance=args.fov_tolerance)',
         behaviour="solve --method newton: the paper's damped Newton iteration",
         tests=['test/test_cli.py::test_solve_method_newton_is_the_papers_iteration',
                'test/test_cli.py::test_solve_method_newton_agrees_with_the_default_and_the_paper'],

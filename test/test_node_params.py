@@ -11,7 +11,7 @@ import time
 import cv2
 import numpy as np
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.srv import SetParameters, SetParametersAtomically
 from sensor_msgs.msg import CameraInfo
 
@@ -253,3 +253,44 @@ def test_refine_publishes_and_saves_the_configured_plumb_bob_model(peer, start_n
     assert saved.distortion_model == 'plumb_bob'
     np.testing.assert_allclose(saved.K.ravel(), info.k, rtol=1e-9)
     assert 'fitted to the refined lens' in node.log, node.log
+
+
+def test_a_spec_whose_fovs_the_camera_misses_is_warned_at_start_up_on_a_change_and_in_diagnostics(peer, start_node):
+    """hfov 118 / vfov 117 on 1920x1080 (the solved camera has 129.4 x 99.9): a WARN naming both
+    values at start-up and /diagnostics at WARN level with spec_warning; an honest change (vfov 69)
+    clears it, another contradictory one (vfov 100: 92.7) warns again; swapped FOVs are rejected
+    saying so, and swapped sides stop the start with one line."""
+    diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
+    node = start_node('--ros-args', '-p', 'width:=1920', '-p', 'height:=1080', '-p', 'hfov:=118', '-p', 'vfov:=117')
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='camera_info')
+    warned = [line for line in node.log.splitlines() if 'vfov: given 117 deg, the solved camera has 99.9 deg' in line]
+    assert len(warned) == 1 and warned[0].startswith('[WARN]') and 'hfov: given 118 deg' in warned[0], node.log
+
+    def status():
+        return diagnostics[-1].status[0] if diagnostics else None
+    peer.spin_until(lambda: status() is not None, what='/diagnostics')
+    assert status().level == DiagnosticStatus.WARN and 'do not fit' in status().message
+    assert 'vfov: given 117 deg' in diagnostics_value(diagnostics, 'spec_warning')
+
+    assert set_parameters(peer, vfov=69.0)[0].successful
+    peer.spin_until(lambda: status().level == DiagnosticStatus.OK and
+                    'spec_warning' not in {kv.key for kv in status().values}, what='diagnostics back to OK')
+    assert node.log.count('[WARN]') == 1, node.log
+    assert set_parameters(peer, vfov=100.0)[0].successful
+    peer.spin_until(lambda: 'vfov: given 100 deg, the solved camera has 92.7 deg' in node.log, what='the WARN')
+    line = next(x for x in node.log.splitlines() if 'given 100 deg' in x)
+    assert line.startswith('[WARN]') and node.log.index('parameters changed') < node.log.index(line)
+    peer.spin_until(lambda: status().level == DiagnosticStatus.WARN, what='diagnostics at WARN again')
+
+    result = set_parameters(peer, hfov=69.0, vfov=118.0)
+    assert not any(r.successful for r in result) and all('hfov and vfov look swapped' in r.reason for r in result)
+    peer.spin_until(lambda: 'parameter change rejected' in node.log, what='the rejection')
+    assert 'look swapped' in next(x for x in node.log.splitlines() if 'parameter change rejected' in x)
+
+    turned = start_node('--ros-args', '-p', 'width:=1080', '-p', 'height:=1920', '-p', 'hfov:=118', '-p', 'vfov:=69',
+                        name='turned')
+    assert turned.wait(30) == 2
+    lines = turned.log.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith('zeroshot_calib: error: width, height = ') and \
+        'width and height look swapped' in lines[0], turned.log

@@ -155,3 +155,42 @@ def test_a_preset_at_another_aspect_ratio_is_refused_everywhere(tmp_path, capsys
     assert main(['refine', str(image), '--preset', 'gopro_hero9_wide']) == 2
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and 'gopro_hero9_wide' in err[0] and '1920x1080' in err[0], err
+
+
+ROBOTICS = {  # name: (width, height, hfov, vfov, dfov, given, where the source is)
+    'rpi_camera_v3_wide': (4608, 2592, 102, 67, 120, 'h+v+d', 'https://www.raspberrypi.com/documentation/accessories/camera.html'),
+    'luxonis_oak_d_w_mono': (1280, 800, 127, 79.5, 150, 'h+v+d', 'https://docs.luxonis.com/hardware/products/oak-d-w'),
+    'luxonis_oak_d_w_color': (4056, 3040, 95, 72, 120, 'h+v+d', 'https://docs.luxonis.com/hardware/products/oak-d-w'),
+    'luxonis_ov9782_w': (1280, 800, 127, 79.5, 150, 'h+v+d', 'https://docs.luxonis.com/hardware/products/oak-ffc-ov9782-w'),
+    'luxonis_oak_d_lr': (1920, 1200, 82, 56, 100, 'h+v+d', 'https://docs.luxonis.com/hardware/products/oak-d-lr'),
+    'luxonis_oak_d_mono': (1280, 800, 72, 49, 81, 'h+v+d', 'https://docs.luxonis.com/hardware/products/oak-d'),
+    'luxonis_oak_d_color': (4056, 3040, 69, 55, 81, 'h+v+d', 'https://docs.luxonis.com/hardware/products/oak-d'),
+    'stereolabs_zed_hd2k': (2208, 1242, 76, 47, None, 'h+v', 'support.stereolabs.com'),
+    'stereolabs_zed_hd1080': (1920, 1080, 69, 42, None, 'h+v', 'support.stereolabs.com'),
+    'stereolabs_zed_hd720': (1280, 720, 85, 54, None, 'h+v', 'support.stereolabs.com'),
+    'stereolabs_zed_vga': (672, 376, 87, 56, None, 'h+v', 'support.stereolabs.com'),
+}
+
+
+@pytest.mark.parametrize('name', list(ROBOTICS))
+def test_robotics_presets_are_their_sheets_values_with_the_fovs_given_and_the_address(name):
+    w, h, hfov, vfov, dfov, given, where = ROBOTICS[name]
+    preset = PRESETS[name]
+    assert (preset.spec.width, preset.spec.height, preset.spec.hfov, preset.spec.vfov, preset.spec.dfov) == \
+        (w, h, hfov, vfov, dfov)
+    assert preset.given == given and where in preset.source
+    assert solve_zero_shot(preset.spec).warnings == []
+
+
+def test_the_listing_says_which_fovs_each_sheet_gives(capsys):
+    assert main(['presets', '--json']) == 0
+    records = {r['name']: r for r in json.loads(capsys.readouterr().out)}
+    assert records['logitech_c920']['given'] == 'd' and records['logitech_c905']['given'] == 'h'
+    assert records['gopro_hero9_wide']['given'] == 'h+v' and records['rpi_camera_v3_wide']['given'] == 'h+v+d'
+    assert all(r['given'] == PRESETS[n].given for n, r in records.items())
+    assert main(['presets']) == 0
+    lines = capsys.readouterr().out.splitlines()
+    header = lines[0].split()
+    assert header[header.index('circle') + 1] == 'given'
+    row = next(line.split() for line in lines if line.startswith('luxonis_oak_d_w_mono '))
+    assert row[header.index('given')] == 'h+v+d'

@@ -231,14 +231,14 @@ def test_batch_header_with_circle_columns_gives_the_closed_form_circular_fisheye
 
 def test_presets_hold_every_family_the_readme_names_each_with_its_source(capsys):
     """README: presets are "published spec sheets (the paper's cameras, Logitech, Raspberry Pi camera
-    modules, RealSense colour cameras), each with its source, in
-    `zeroshot_calib_ros/data/camera_presets.csv`"."""
+    modules, RealSense colour cameras, Luxonis OAK and Stereolabs ZED cameras), each with its source
+    and the FOVs it gives, in `zeroshot_calib_ros/data/camera_presets.csv`"."""
     status, out, _ = run_main(['presets', '--json'], capsys)
     records = json.loads(out)
-    assert status == 0 and all(r['source'].strip() for r in records)
+    assert status == 0 and all(r['source'].strip() and r['given'] for r in records)
     text = {r['name']: (r['name'] + ' ' + r['description']).lower() for r in records}
     families = {'Logitech': 'logitech', 'Raspberry Pi camera module': 'raspberry pi',
-                'RealSense colour camera': 'realsense'}
+                'RealSense colour camera': 'realsense', 'Luxonis OAK': 'luxonis oak', 'Stereolabs ZED': 'stereolabs zed'}
     for family, word in families.items():
         assert any(word in t for t in text.values()), f'no {family} preset'
     assert sum('realsense' in t and 'colo' in t for t in text.values()) >= 1

@@ -133,7 +133,7 @@ def _camera_name_of(row_name: str) -> str:
 
 
 def _solve(spec, args, camera_name='camera'):
-    solution = solve_zero_shot(spec, args.model, getattr(args, 'method', 'bracketed'))
+    solution = solve_zero_shot(spec, args.model, getattr(args, 'method', 'bracketed'), args.fov_tolerance)
     calibration, fit = CameraCalibration.from_solution(
         solution, args.distortion_model, args.balance, args.fov_scale, camera_name)
     return solution, calibration, fit
@@ -195,7 +195,8 @@ def _cmd_presets(args):
     presets = load_presets()
     records = [{'name': p.name, 'width': p.spec.width, 'height': p.spec.height, 'hfov': p.spec.hfov,
                 'vfov': p.spec.vfov, 'dfov': p.spec.dfov, 'circle_diameter': p.spec.circle_diameter,
-                'circle_fov': p.spec.circle_fov, 'description': p.description, 'source': p.source}
+                'circle_fov': p.spec.circle_fov, 'given': p.given, 'description': p.description,
+                'source': p.source}
                for p in presets.values()]
     if args.json:
         print(json.dumps(records))
@@ -203,11 +204,11 @@ def _cmd_presets(args):
 
     def deg(value):
         return '-' if value is None else f'{value:g}'
-    rows = [('name', 'resolution', 'hfov', 'vfov', 'dfov', 'circle', 'source')]
+    rows = [('name', 'resolution', 'hfov', 'vfov', 'dfov', 'circle', 'given', 'source')]
     for r in records:
         circle = '-' if r['circle_diameter'] is None else f"{r['circle_diameter']:g}px/{r['circle_fov']:g}"
         rows.append((r['name'], f"{r['width']}x{r['height']}", deg(r['hfov']), deg(r['vfov']),
-                     deg(r['dfov']), circle, r['source']))
+                     deg(r['dfov']), circle, r['given'], r['source']))
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]) - 1)]
     for row in rows:
         print('  '.join(cell.ljust(w) for cell, w in zip(row, widths)) + '  ' + row[-1])
@@ -227,7 +228,7 @@ def _cmd_solve(args):
     camera_name = 'camera' if args.camera_name is None else args.camera_name
     solution, calibration, fit = _solve(spec, args, camera_name)
     summary = solution_summary(solution, calibration, fit)
-    warnings = _fit_warnings(solution, calibration, fit)
+    warnings = solution.warnings + _fit_warnings(solution, calibration, fit)
     warnings += _add_uncertainty(summary, spec, solution, args.fov_tolerance)
     summary['warning'] = warnings
     if args.yaml:
@@ -403,7 +404,7 @@ def _solve_batch(args):
             solution, calibration, fit = _solve(spec, args, _camera_name_of(name))
             record = {'name': name, 'camera_name': calibration.camera_name,
                       **solution_summary(solution, calibration, fit)}
-            warnings = _fit_warnings(solution, calibration, fit)
+            warnings = solution.warnings + _fit_warnings(solution, calibration, fit)
             warnings += _add_uncertainty(record, spec, solution, args.fov_tolerance)
             record['warning'] = warnings
             if args.yaml_dir is not None:
@@ -529,6 +530,7 @@ def _rectify_camera(args, width, height):
         raise CliError(f'the image is {width}x{height} but the spec is {spec.width}x{spec.height}: '
                        'aspect ratios differ')
     solution = solve_zero_shot(spec, args.model or 'auto')
+    _print_warnings(solution.warnings)
     camera = solution.camera if (spec.width, spec.height) == (width, height) \
         else solution.camera.scaled(width, height)
     return camera, new_camera_matrix(camera, balance, fov_scale), None
@@ -659,11 +661,12 @@ def _cmd_refine(args):
               for im in images]
     (width, height), = sizes
     spec = _refine_spec(args, width, height)
-    solution = solve_zero_shot(spec, 'auto')
+    solution = solve_zero_shot(spec, 'auto', fov_tolerance=args.fov_tolerance)
     # the images are detected in parallel threads (the same curves, in the same order)
     result = refine_from_images(spec, images, args.fov_tolerance, workers=os.cpu_count() or 1)
     summary, calibration = _refined_summary(result, spec, solution, args)
-    warnings = [] if result.accepted else _fit_warnings(solution, calibration, DISTORTION_FITS['equidistant'](solution.camera))
+    warnings = list(solution.warnings)  # the spec's FOVs against the zero-shot camera
+    warnings += [] if result.accepted else _fit_warnings(solution, calibration, DISTORTION_FITS['equidistant'](solution.camera))
     summary['uncertainty_px'] = result.uncertainty_px if result.accepted else result.zero_shot_uncertainty_px
     summary['refinement'] = json_safe({k: getattr(result, k) for k in REFINE_KEYS})
     if getattr(result, 'zero_shot_uncertainty', None) is not None and result.zero_shot_uncertainty.warning \
@@ -776,11 +779,12 @@ def _cmd_calibrate(args):
             raise CliError(f'board {corners.board.size} not found in {args.single}')
         views = [corners.index(args.single)]
     spec = _fov_spec(args, corners)
+    spec_warnings = _spec_warnings(spec, args.fov_tolerance)
     if spec is not None and args.spec_as == 'evidence':
         if args.principal_point != 'auto':
             raise CliError(f'--principal-point {args.principal_point} is for --spec-as start (FC_eq.d.): the '
                            'spec-as-evidence fit always frees the principal point under its prior')
-        return _calibrate_with_spec(args, corners, views, spec)
+        return _calibrate_with_spec(args, corners, views, spec, spec_warnings)
     principal_point = {'auto': None, 'fixed': False, 'free': True}[args.principal_point]
     result = calibrate(corners, 'fc+zs' if spec is not None else 'fc', views, spec, principal_point)
     if not result.ok:
@@ -791,7 +795,7 @@ def _cmd_calibrate(args):
     if args.distortion_model == 'plumb_bob':
         _check_plumb_bob(solution.camera, fit.max_error_px, 'the calibrated camera')
     summary = solution_summary(solution, calibration, fit)
-    summary['warning'] = _fit_warnings(solution, calibration, fit)
+    summary['warning'] = spec_warnings + _fit_warnings(solution, calibration, fit)
     used = [corners.names[v] for v in result.views]
     summary.update({
         'method': result.label, 'init': result.init, 'a': solution.omega * solution.f,
@@ -866,7 +870,19 @@ def _check_plumb_bob(camera, fit_error, what):
                    '--distortion-model equidistant')
 
 
-def _calibrate_with_spec(args, corners, views, spec):
+def _spec_warnings(spec, fov_tolerance):
+    """The warnings of the zero-shot camera solved from ``spec`` (given FOVs it misses by more
+    than ``fov_tolerance``); [] without a spec, or when none can be solved (the calibration then
+    says why)."""
+    if spec is None:
+        return []
+    try:
+        return solve_zero_shot(spec, 'auto', fov_tolerance=fov_tolerance).warnings
+    except (SpecError, NoConvergence):
+        return []
+
+
+def _calibrate_with_spec(args, corners, views, spec, spec_warnings=()):
     """`calibrate` with the spec as evidence: the MAP over corners, FOVs and priors
     (core/estimation/board_fit.py); the camera is Kannala-Brandt (ROS equidistant, exact)."""
     from .core.estimation.board_fit import METHOD_LABEL, fit_board  # scipy.optimize: only when asked
@@ -891,7 +907,7 @@ def _calibrate_with_spec(args, corners, views, spec):
     summary, calibration = _kannala_brandt_record(camera, spec, model, args, args.distortion_model, D, fit_error)
     used = [corners.names[v] for v in fit.views]
     summary.update({
-        'warning': fit_warnings + list(fit.warnings),
+        'warning': list(spec_warnings) + fit_warnings + list(fit.warnings),
         'method': METHOD_LABEL if fit.accepted else f'zero-shot kept ({METHOD_LABEL} not adopted)',
         'accepted': fit.accepted, 'reason': fit.reason, 'init': 'zero-shot', 'a': None, 'spec_as': 'evidence',
         'principal_point': 'free (prior)', 'images': len(used), 'image_names': used,
@@ -1005,8 +1021,9 @@ def _cmd_evaluate(args):
 def _add_fov_tolerance_argument(parser):
     parser.add_argument('--fov-tolerance', type=_number, default=FOV_TOLERANCE_DEG, metavar='DEG',
                         help='how far the spec-sheet FOVs may be off (1 sigma, degrees; default '
-                             f'{FOV_TOLERANCE_DEG:g}): sets the reported uncertainty and, for refine, '
-                             'how much the lines may move the FOVs')
+                             f'{FOV_TOLERANCE_DEG:g}): sets the reported uncertainty, the warning when '
+                             'the solved camera misses a given FOV by more, and, for refine, how much '
+                             'the lines may move the FOVs')
 
 
 def _add_circle_arguments(parser):
@@ -1103,8 +1120,9 @@ def build_parser() -> argparse.ArgumentParser:
                             'Kannala-Brandt camera with uncertainty_px; start: FC_eq.d. from the zero-shot '
                             'camera (FC_eq.d.+ZS), the spec used only as the start')
     calib.add_argument('--fov-tolerance', type=_number, default=FOV_TOLERANCE_DEG, metavar='DEG',
-                       help='with --spec-as evidence: how far the spec FOVs may be off (1 sigma, degrees; '
-                            f'default {FOV_TOLERANCE_DEG:g})')
+                       help='how far the spec FOVs may be off (1 sigma, degrees; default '
+                            f'{FOV_TOLERANCE_DEG:g}): with --spec-as evidence, their weight in the fit; '
+                            'with a spec, the warning when the zero-shot camera misses a given FOV by more')
     calib.add_argument('--single', metavar='IMAGE',
                        help='single-shot: calibrate on this image only (one of the inputs, a name in '
                             '--corners, or an image file on its own)')

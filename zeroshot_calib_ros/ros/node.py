@@ -256,6 +256,7 @@ class ZeroShotCalibNode(Node):
                 return active
         active, summary = solve_from_settings(settings, 0, build_maps=False, map_budget_bytes=self._map_budget_bytes)
         self._log('info', 'zero-shot calibration from the spec sheet:\n' + summary_text(summary))
+        self._warn_spec(summary)
         self._warn_fit(summary)
         return active
 
@@ -268,6 +269,12 @@ class ZeroShotCalibNode(Node):
             self._log('warning', f'{path} is for {calibration.width}x{calibration.height} images, the spec '
                       f'says {spec.width}x{spec.height}; using the file (frames of the spec '
                       'size get scaled intrinsics if the aspect ratio agrees)')
+
+    def _warn_spec(self, summary: Optional[dict]):
+        """The spec's FOVs that the solved camera misses (core/zeroshot/consistency.py), each a
+        WARN: the calibration is still adopted, and published, as the spec gives it."""
+        for warning in (summary or {}).get('warning', ()):
+            self._log('warning', f'spec: {warning}')
 
     def _warn_fit(self, summary: Optional[dict]):
         if summary and summary['fit_error_px'] > FIT_WARNING_PX:
@@ -608,6 +615,10 @@ class ZeroShotCalibNode(Node):
                   **self._stats}
         if values['refine_state'] == 'failed':
             status.level = DiagnosticStatus.WARN
+        if self._active.spec_warnings:  # a calibration from a spec whose FOVs it does not show
+            status.level = DiagnosticStatus.WARN
+            status.message += ": the spec's FOVs do not fit the image (spec_warning)"
+            values['spec_warning'] = ' | '.join(self._active.spec_warnings)
         if self._uncalibrated is not None and not self._camera_exists():
             self._uncalibrated = None  # the camera has stopped
         if self._uncalibrated is not None:
@@ -680,6 +691,7 @@ class ZeroShotCalibNode(Node):
         changed = ', '.join(f'{p.name}={value_text(p.value)}' for p in parameters)
         self._adopt(active, f'parameters changed ({changed}), re-solved:\n' + summary_text(summary)
                     if summary else f'parameters changed ({changed})', values)
+        self._warn_spec(summary)
         self._warn_fit(summary)
         return SetParametersResult(successful=True)
 

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..lens.models import angle_between
 from ..lens.wide_fov import fields_of_view_through_axis
+from ..zeroshot.spec import FOV_TOLERANCE_DEG as _SPEC_FOV_TOLERANCE_DEG
 from ..zeroshot.spec import CameraSpec
 
 PRINCIPAL_POINT_SIGMA = 0.011
@@ -44,8 +45,9 @@ PRINCIPAL_POINT_SIGMA = 0.011
 SHAPE_SIGMA = 0.005
 """Prior RMS relative deviation of theta_d from the reference shape over the field."""
 
-FOV_TOLERANCE_DEG = 1.0
-"""Default standard deviation of a spec FOV (degrees)."""
+FOV_TOLERANCE_DEG = _SPEC_FOV_TOLERANCE_DEG
+"""Default standard deviation of a spec FOV (degrees); defined with the spec (zeroshot/spec.py),
+where the consistency warnings use it too."""
 
 INVALID_FOV_DEG = 90.0
 """Residual of a FOV whose edge pixel has no ray under the camera."""

@@ -232,6 +232,9 @@ class ActiveCalibration:
     least recently used ones and are refused when they cannot fit.
     """
 
+    spec_warnings: Tuple[str, ...] = ()
+    """Solved from a spec: the given FOVs its camera misses (``ZeroShotSolution.warnings``)."""
+
     def __init__(self, calibration: CameraCalibration, camera: CameraModel, source: str,
                  generation: int = 0, rectify: bool = False, interpolation: int = 1,
                  build_maps: bool = True, map_budget_bytes: Optional[int] = None):

@@ -257,13 +257,17 @@ class Settings:
 def solve_from_settings(settings: Settings, generation: int, build_maps: bool = True,
                         map_budget_bytes: Optional[int] = None):
     """ActiveCalibration solved from the spec, and its summary (maps built unless ``build_maps``
-    is False: then ``prepare()`` builds them)."""
+    is False: then ``prepare()`` builds them). The solution's warnings (given FOVs its camera
+    misses, at the default tolerance) are the summary's ``warning`` and ``active.spec_warnings``."""
     solution = solve_zero_shot(settings.spec, settings.projection)
     calibration, fit = CameraCalibration.from_solution(
         solution, settings.distortion_model, settings.balance, settings.fov_scale, settings.camera_name)
     active = ActiveCalibration(calibration, solution.camera, 'spec', generation, settings.rectify,
                                settings.interpolation, build_maps=build_maps, map_budget_bytes=map_budget_bytes)
-    return active, solution_summary(solution, calibration, fit)
+    active.spec_warnings = tuple(solution.warnings)
+    summary = solution_summary(solution, calibration, fit)
+    summary['warning'] = list(solution.warnings)
+    return active, summary
 
 
 def usage_text() -> str:

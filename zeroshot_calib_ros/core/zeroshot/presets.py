@@ -42,6 +42,15 @@ class Preset:
     description: str
     source: str
 
+    @property
+    def given(self) -> str:
+        """Which FOVs the source gives, as 'h+v+d', 'd', 'h+v', 'circle' ... (the table's
+        non-empty cells: nothing is derived or guessed)."""
+        parts = [name[0] for name in self.spec.given()]
+        if self.spec.circle_fov is not None:
+            parts.append('circle')
+        return '+'.join(parts)
+
 
 def normalise_name(name: str) -> str:
     return str(name).strip().lower().replace('-', '_').replace(' ', '_')

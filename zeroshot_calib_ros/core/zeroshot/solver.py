@@ -16,14 +16,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict
+from typing import Dict, List
 
 import numpy as np
 
 from ..lens.models import ZeroShotCamera
 from .brent import brentq
 from ..lens.projections import PROJECTIONS, FisheyeProjection
-from .spec import CameraSpec, SpecError
+from .consistency import check_fov_tolerance, fov_warnings
+from .spec import FOV_TOLERANCE_DEG, CameraSpec, SpecError
 from ..lens.wide_fov import WIDE
 from .wide_solver import WIDE_CHOICES, needs_wide_model, solve_wide
 
@@ -54,6 +55,9 @@ class ZeroShotSolution:
     dfov_residuals: Dict[str, float] = field(default_factory=dict)
     """With dfov and hfov + vfov given: predicted minus given dfov (degrees) for every projection."""
     iterations: int = 0
+    warnings: List[str] = field(default_factory=list)
+    """One line per way the solved camera misses the given FOVs by more than the tolerance
+    (``consistency.fov_warnings``); [] when it shows them."""
 
     @property
     def omega(self) -> float:
@@ -173,8 +177,10 @@ def _make_camera(spec, projection, omega, f):
     return camera
 
 
-def solve_zero_shot(spec: CameraSpec, projection: str = 'auto', method: str = 'bracketed') -> ZeroShotSolution:
-    """Zero-shot calibration of ``spec``.
+def solve_zero_shot(spec: CameraSpec, projection: str = 'auto', method: str = 'bracketed',
+                    fov_tolerance: float = FOV_TOLERANCE_DEG) -> ZeroShotSolution:
+    """Zero-shot calibration of ``spec``, with ``warnings`` when the solved camera misses a given
+    FOV by more than ``fov_tolerance`` degrees (``consistency.py``).
 
     ``projection``: a name in PROJECTIONS, or 'auto': with hfov, vfov and dfov given, the
     projection whose predicted dfov is closest to the given one (the paper's proposed adaptive
@@ -188,6 +194,13 @@ def solve_zero_shot(spec: CameraSpec, projection: str = 'auto', method: str = 'b
     off-axis); every other spec gets the paper's result unchanged.
     ``method``: 'bracketed' (Brent, exact to machine precision) or 'newton' (the paper's).
     """
+    fov_tolerance = check_fov_tolerance(fov_tolerance)
+    solution = _solve_zero_shot(spec, projection, method)
+    solution.warnings = fov_warnings(solution, fov_tolerance)
+    return solution
+
+
+def _solve_zero_shot(spec: CameraSpec, projection: str, method: str) -> ZeroShotSolution:
     if projection not in PROJECTION_CHOICES:
         raise SpecError('projection', projection, ', '.join(PROJECTION_CHOICES))
     if method not in ('bracketed', 'newton'):

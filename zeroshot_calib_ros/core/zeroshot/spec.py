@@ -25,6 +25,11 @@ def value_text(value, limit: int = VALUE_TEXT_CHARS) -> str:
 MAX_FOV_DEG = 360.0
 """A spec FOV is an angle across the image; models narrow this further (see projections)."""
 
+FOV_TOLERANCE_DEG = 1.0
+"""Default standard deviation of a spec FOV (degrees): a spec sheet's rounding and its
+unit-to-unit spread. The uncertainty, the refinement and the consistency warnings
+(``consistency.py``) use it."""
+
 
 class SpecError(ValueError):
     """A camera specification value is invalid.
@@ -80,6 +85,26 @@ def _check_circle_diameter(value) -> Optional[float]:
     return value
 
 
+def _check_not_swapped(spec: 'CameraSpec'):
+    """SpecError when the wider of hfov and vfov spans the shorter side of the image: no radially
+    symmetric lens does that (its angle grows with the distance from the centre), and a spec
+    sheet's rounding cannot turn the order round (equal is possible, so equal passes). Width and
+    height swapped, or hfov and vfov, is what gives it; which of the two is guessed from the
+    orientation (spec sheets quote landscape FOVs, hfov > vfov), and the message names both."""
+    w, h, hfov, vfov = spec.width, spec.height, spec.hfov, spec.vfov
+    if hfov is None or vfov is None or w == h or (hfov > vfov) == (w > h) or hfov == vfov:
+        return
+    if w < h:  # a portrait size with landscape FOVs: the size is the likelier slip
+        raise SpecError('width, height', f'{w}x{h}', f'{h}x{w}, or vfov greater than hfov for a {w}x{h} image',
+                        f'width and height look swapped: hfov {hfov:g} > vfov {vfov:g} degrees needs the wider '
+                        f'side horizontal (a lens sees the wider angle across the longer side), and {w}x{h} is '
+                        'taller than wide (for a camera turned 90 degrees, swap hfov and vfov instead)')
+    raise SpecError('vfov', vfov, f'less than hfov = {hfov:g} degrees on a {w}x{h} image',
+                    f'hfov and vfov look swapped: vfov {vfov:g} > hfov {hfov:g} degrees needs the taller side '
+                    f'vertical (a lens sees the wider angle across the longer side), and {w}x{h} is wider '
+                    'than tall (for a portrait image, swap width and height instead)')
+
+
 @dataclass(frozen=True)
 class CameraSpec:
     """Image size in pixels and the spec-sheet fields of view in degrees.
@@ -129,6 +154,7 @@ class CameraSpec:
                 and self.hfov != self.vfov:
             raise SpecError('vfov', self.vfov, f'equal to hfov = {self.hfov:g} degrees on a square image',
                             'a square image with square pixels has equal horizontal and vertical FOV')
+        _check_not_swapped(self)
 
     @property
     def diagonal(self) -> float:
