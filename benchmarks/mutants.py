@@ -945,7 +945,8 @@ MUTANTS = [
         old='            if not os.path.isfile(path):',
         new='            if not os.path.exists(path):',
         behaviour='A --params-file that cannot be read (missing, a directory) is one clear line, exit 2, no traceback',
-        tests=['test/test_node_params.py::test_a_missing_params_file_is_one_clear_line'],
+        tests=['test/test_node_parameters.py::test_a_params_file_that_cannot_be_read_is_one_line_naming_it',
+               'test/test_node_params.py::test_a_missing_params_file_is_one_clear_line'],
     ),
     dict(
         id='r3-params-file-last-argument-index-error',
@@ -953,7 +954,8 @@ MUTANTS = [
         old='            if i + 1 >= len(argv):',
         new='            if i + 1 > len(argv):',
         behaviour='--params-file without a file is one clear line, exit 2, no traceback',
-        tests=['test/test_node_params.py::test_a_missing_params_file_is_one_clear_line'],
+        tests=['test/test_node_parameters.py::test_params_file_as_the_last_argument_says_it_needs_a_file',
+               'test/test_node_params.py::test_a_missing_params_file_is_one_clear_line'],
     ),
     dict(
         id='r3-refiner-dead-worker-after-refined-not-failed',
@@ -969,7 +971,9 @@ MUTANTS = [
         old='        if self.offered is not None and (self.offers or self.reference is None):',
         new='        if self.offered is not None:',
         behaviour="refine restarted with a refined calibration in force: state collecting until a fit 0.7x better is offered",
-        tests=['test/test_online_refinement.py', '-k', 'restarted or better'],
+        tests=['test/test_online_refinement.py::test_a_restarted_refiner_reads_collecting_until_a_fit_beats_the_calibration_in_force',
+               'test/test_online_refinement.py::test_a_restarted_refiner_offers_only_a_fit_better_than_the_calibration_in_force',
+               'test/test_online_refinement.py::test_after_a_refined_camera_only_a_clearly_better_fit_is_offered_and_then_it_finishes'],
     ),
     dict(
         id='r3-refiner-size-change-scale-inverted',
@@ -977,7 +981,8 @@ MUTANTS = [
         old='        scale = width / old[0]',
         new='        scale = old[0] / width',
         behaviour='refine: on a frame size change the camera in use and its uncertainty are scaled to the new size (0.7x rule in its pixels)',
-        tests=['test/test_online_refinement.py', '-k', 'size'],
+        tests=['test/test_online_refinement.py::test_after_a_size_change_a_fit_must_beat_the_camera_in_use_in_the_new_size_pixels',
+               'test/test_online_refinement.py::test_refinement_follows_the_size_the_stream_has'],
     ),
     dict(
         id='r3-refiner-stop-waits-for-the-worker',
@@ -1102,7 +1107,8 @@ MUTANTS = [
         old='            self._uncalibrated = None\n            return calibration\n',
         new='            return calibration\n',
         behaviour='/diagnostics reports ERROR only while frames of an aspect ratio no calibration describes come',
-        tests=['test/test_bringup.py::test_launch_default_spec_and_frames_of_another_aspect_ratio',
+        tests=['test/test_node.py::test_the_aspect_ratio_error_clears_once_frames_the_calibration_describes_come',
+               'test/test_bringup.py::test_launch_default_spec_and_frames_of_another_aspect_ratio',
                'test/test_node.py::test_bad_frames_are_skipped_counted_and_survived'],
     ),
     dict(
@@ -1112,7 +1118,7 @@ MUTANTS = [
         new='        job.finished.wait(SET_CAMERA_INFO_WAIT_SECONDS / 1000)',
         behaviour='set_camera_info waits up to 3 s for the maps: a calibration whose maps build in that time is answered "adopted and saved", in force',
         tests=['test/test_node_calibration_cycle.py', 'test/test_node.py', 'test/test_readme_claims_ros.py',
-               '-k', 'set_camera_info'],
+               '-k', 'set_camera_info'],  # with test_a_small_calibration_from_set_camera_info_is_answered_in_force_and_saved
     ),
     dict(
         id='r3-node-pending-save-off-by-one',

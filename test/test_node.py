@@ -1,6 +1,7 @@
 """The installed ROS node, in its own process, seen from another process (this one)."""
 
 import math
+import time
 
 import cv2
 import numpy as np
@@ -231,6 +232,47 @@ def test_bad_frames_are_skipped_counted_and_survived(peer, start_node):
     assert (half_rect.width, half_rect.height, half_rect.encoding) == (320, 180, 'mono8')
     # The camera_info of skipped wrong-aspect frames is not sent: no size describes them.
     assert 2001 not in {m.header.stamp.sec for m in infos}
+
+
+def test_the_aspect_ratio_error_clears_once_frames_the_calibration_describes_come(peer, start_node):
+    """A 1920x1080 spec and a camera streaming 640x480 (4:3): /diagnostics is an ERROR naming
+    that size. Once the same camera streams frames the spec describes (960x540, 16:9), they get
+    their CameraInfo and /diagnostics is OK again (and stays OK while they come)."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+    start_node(*W1_ARGS)
+    reliable = qos(ReliabilityPolicy.RELIABLE)
+    infos = peer.collect(CameraInfo, 'camera_info', reliable)
+    diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
+    pub = peer.image_publisher(reliable)
+    stamp = [3000]
+
+    def levels(messages):
+        return [(s.level, s.message) for d in messages for s in d.status]
+
+    def stream_until(array, predicate, timeout, what):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            pub.publish(frame(array, 'mono8', stamp[0]))
+            stamp[0] += 1
+            peer.spin_for(0.1)
+            if predicate():
+                return
+        raise AssertionError(f'timed out after {timeout:g} s waiting for {what}; '
+                             f'the newest /diagnostics: {levels(diagnostics[-3:])}')
+
+    stream_until(np.zeros((480, 640), np.uint8),
+                 lambda: any(level == DiagnosticStatus.ERROR and '640x480' in text
+                             for level, text in levels(diagnostics)), 30, 'a /diagnostics ERROR naming 640x480')
+    first_good = stamp[0]
+    good = np.full((540, 960), 80, np.uint8)
+    stream_until(good, lambda: any(m.header.stamp.sec >= first_good and (m.width, m.height) == (960, 540)
+                                   for m in infos), 30, 'the CameraInfo of the 960x540 frames')
+    seen = len(diagnostics)
+    stream_until(good, lambda: any(level == DiagnosticStatus.OK for level, _ in levels(diagnostics[seen:])), 30,
+                 '/diagnostics OK again while 960x540 frames come')
+    ok_at = len(diagnostics)
+    stream_until(good, lambda: len(diagnostics) >= ok_at + 2, 30, 'two more /diagnostics')
+    assert all(level == DiagnosticStatus.OK for level, _ in levels(diagnostics[ok_at:])), levels(diagnostics[ok_at:])
 
 
 @pytest.mark.parametrize('encoding, dtype, channels', [

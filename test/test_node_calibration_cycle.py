@@ -137,6 +137,31 @@ def test_set_camera_info_success_means_in_force(peer, start_node, tmp_path):
         assert infos and all(m.width == 4000 for m in infos), [m.width for m in infos]
 
 
+def test_a_small_calibration_from_set_camera_info_is_answered_in_force_and_saved(peer, start_node, tmp_path):
+    """rectify on, a 640x360 calibration (1.8 MiB of maps, built in tens of milliseconds, well
+    within the SET_CAMERA_INFO_WAIT_SECONDS = 3 s the reply waits): the reply is "calibration
+    adopted and saved", as camera_info_manager answers, not "accepted, not in force yet"; the
+    file holds it and every CameraInfo after the reply has it. Twice (a recalibration too)."""
+    path = tmp_path / 'cam.yaml'
+    start_node('--ros-args', *SPEC_720, '-p', 'rectify:=true', '-p', f'camera_info_url:=file://{path}')
+    infos = peer.collect(CameraInfo, 'camera_info', RELIABLE)
+    peer.spin_until(lambda: infos, what='camera_info')
+    for f_scale in (0.5, 0.4):
+        info = camera_info(640, 360, f_scale=f_scale)
+        response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=info))
+        replied_ns = time.time_ns()  # the node stamps its CameraInfo with the same (system) clock
+        assert response.success, response.status_message
+        assert response.status_message == f'calibration adopted and saved to {path}', response.status_message
+        saved = yaml.safe_load(path.read_text())
+        assert (saved['image_width'], saved['camera_matrix']['data'][0]) == (640, pytest.approx(info.k[0]))
+
+        def after_reply():
+            return [m for m in infos if stamp_of(m) > replied_ns]
+        peer.spin_until(lambda: len(after_reply()) >= 3, what='CameraInfo stamped after the reply')
+        assert all((m.width, m.k[0]) == (640, pytest.approx(info.k[0])) for m in after_reply()), \
+            [(m.width, m.k[0]) for m in after_reply()]
+
+
 def vm_size_bytes(pid):
     with open(f'/proc/{pid}/status') as f:
         return int(next(line for line in f if line.startswith('VmSize')).split()[1]) * 1024

@@ -4,7 +4,7 @@ import ast
 import re
 from pathlib import Path
 
-from zeroshot_calib_ros.core.ros_data.node_parameters import (PARAMETERS, changed_parameters,
+from zeroshot_calib_ros.core.ros_data.node_parameters import (PARAMETERS, changed_parameters, params_file_errors,
                                                                unknown_parameter_warnings, usage_text, value_text)
 from zeroshot_calib_ros.core.zeroshot.spec import SpecError
 
@@ -40,6 +40,32 @@ def test_unknown_parameters_are_named_with_the_closest_declared_one():
     assert len(warnings) == 2, warnings
     assert "'rectfy'" in warnings[0] and "did you mean 'rectify'" in warnings[0], warnings
     assert "'zzzzzz'" in warnings[1] and 'did you mean' not in warnings[1], warnings
+
+
+def test_a_params_file_that_cannot_be_read_is_one_line_naming_it(tmp_path):
+    """--params-file FILE of the ROS arguments: a missing file and a directory are each one line
+    naming the path and what it is; a readable file is no error; arguments before --ros-args
+    (or after --) are not ROS arguments."""
+    readable = tmp_path / 'params.yaml'
+    readable.write_text('/**:\n  ros__parameters:\n    hfov: 118.0\n')
+    missing = tmp_path / 'missing.yaml'
+    assert params_file_errors(['--ros-args', '--params-file', str(readable)]) == []
+    for path, what in ((missing, 'no such file'), (tmp_path, 'is a directory')):
+        errors = params_file_errors(['--ros-args', '--params-file', str(path)])
+        assert len(errors) == 1 and str(path) in errors[0] and what in errors[0], errors
+        assert '\n' not in errors[0]
+    assert params_file_errors(['--params-file', str(tmp_path), '--ros-args']) == []
+    assert params_file_errors(['--ros-args', '--', '--params-file', str(tmp_path)]) == []
+    both = params_file_errors(['--ros-args', '--params-file', str(tmp_path), '--params-file', str(missing)])
+    assert len(both) == 2 and str(tmp_path) in both[0] and str(missing) in both[1], both
+
+
+def test_params_file_as_the_last_argument_says_it_needs_a_file():
+    """`node --ros-args --params-file` with nothing after it: one line saying a file is needed
+    (not an IndexError)."""
+    for argv in (['--ros-args', '--params-file'], ['-x', '--ros-args', '-p', 'hfov:=118', '--params-file']):
+        errors = params_file_errors(argv)
+        assert len(errors) == 1 and errors[0].startswith('--params-file needs a file'), errors
 
 
 def _user_strings():

@@ -98,14 +98,22 @@ def test_unknown_parameters_from_the_command_line_are_named(peer, start_node):
     assert "did you mean 'rectify'" in node.log, node.log
 
 
-def test_a_missing_params_file_is_one_clear_line(tmp_path):
-    missing = tmp_path / 'missing.yaml'
-    done = subprocess.run([str(NODE_EXECUTABLE), '--ros-args', '--params-file', str(missing)], capture_output=True,
-                          text=True, timeout=60, env=ros_environment(98))
-    assert done.returncode != 0
+@pytest.mark.parametrize('case', ['missing', 'directory', 'no file after it'])
+def test_a_missing_params_file_is_one_clear_line(tmp_path, case):
+    """--params-file naming a missing file or a directory, or given last with no file after it:
+    one line on stderr saying what is wrong (naming the path), exit status 2, no traceback."""
+    path = {'missing': tmp_path / 'missing.yaml', 'directory': tmp_path, 'no file after it': None}[case]
+    args = ['--ros-args', '--params-file'] + ([] if path is None else [str(path)])
+    done = subprocess.run([str(NODE_EXECUTABLE), *args], capture_output=True, text=True, timeout=60,
+                          env=ros_environment(98))
     output = done.stdout + done.stderr
-    assert 'Traceback' not in output and str(missing) in output, output
-    assert len([line for line in output.splitlines() if line.strip()]) == 1, output
+    assert done.returncode == 2, (done.returncode, output)
+    assert 'Traceback' not in output, output
+    lines = [line for line in output.splitlines() if line.strip()]
+    assert len(lines) == 1, output
+    expected = {'missing': [str(path), 'no such file'], 'directory': [str(path), 'is a directory'],
+                'no file after it': ['--params-file needs a file']}[case]
+    assert all(words in lines[0] for words in expected), output
 
 
 @pytest.mark.parametrize('delay', [0.05, 0.3, 0.6, 1.0, 2.5])

@@ -291,6 +291,39 @@ def test_refinement_follows_the_size_the_stream_has(monkeypatch):
     assert sizes[-1][2].width == 640 and sizes[-1][2].fx == pytest.approx(third['camera'][0] / 2)
 
 
+def test_a_restarted_refiner_reads_collecting_until_a_fit_beats_the_calibration_in_force(monkeypatch):
+    """Refine turned off and on with a refined calibration in force: the refiner's state is
+    collecting (not refined) while no fit has beaten that calibration by the 0.7x rule, even
+    when the gate accepts the fits; refined from the first fit that does."""
+    from zeroshot_calib_ros.core.ros_data.online_refinement import _camera_tuple
+    in_force = zero_shot_camera(SPEC, 640, 360)
+    worker, _ = _scripted_worker(monkeypatch, [(2.06, True), (None, False), (1.5, True), (1.3, True), (1.3, True)],
+                                 initial=_camera_tuple(in_force), reference_uncertainty_px=2.0)
+    black = np.zeros((360, 640), np.uint8)
+    got = [worker.frame(black) for _ in range(5)]
+    states = [(a['status']['state'], a['status']['cameras_offered'], a['camera'] is not None) for a in got]
+    assert states == [('collecting', 0, False), ('collecting', 0, False), ('collecting', 0, False),
+                      ('refined', 1, True), ('refined', 1, False)], states
+
+
+@pytest.mark.parametrize('uncertainty, adopted', [(2.0, False), (0.75, False), (0.7, True), (0.5, True)])
+def test_after_a_size_change_a_fit_must_beat_the_camera_in_use_in_the_new_size_pixels(
+        monkeypatch, uncertainty, adopted):
+    """A camera offered at 1280x720 with 2 px uncertainty, then frames of 640x360 (the stream
+    changed its mode): its uncertainty is 1 px in the new frames' pixels, so a later fit is
+    adopted at <= 0.7 px (0.7 x 1 px) and refused above, as the reason says."""
+    worker, sizes = _scripted_worker(monkeypatch, [(2.0, True), (uncertainty, True)])
+    big, small = np.zeros((720, 1280), np.uint8), np.zeros((360, 640), np.uint8)
+    first = worker.frame(big)
+    assert first['camera'] is not None and first['status']['state'] == 'refined'
+    second = worker.frame(small)
+    assert sizes[-1][:2] == (640, 360)
+    assert (second['camera'] is not None) == adopted, second['status']
+    assert second['status']['cameras_offered'] == (2 if adopted else 1), second['status']
+    if not adopted:
+        assert 'not better than the camera in use (1 px) by 30 %' in second['status']['reason'], second['status']
+
+
 def test_refined_calibration_in_the_configured_plumb_bob_model():
     """With distortion_model plumb_bob (a narrow lens, config/c922.yaml) the refined camera is
     published in plumb_bob, fitted with the zero-shot fitting code, with its error."""
