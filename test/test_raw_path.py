@@ -257,7 +257,7 @@ def _faults_per_frame(peer, node, frames: int) -> float:
 
     def send(stamp):
         pub.publish(serialize_message(image_msg(pixels, 'bgr8', stamp)))
-        peer.spin_until(lambda: stamp in rects, what=f'image_rect of frame {stamp}')
+        peer.spin_until(lambda: stamp in rects, timeout=60, what=f'image_rect of frame {stamp}')
 
     for i in range(3):  # frames before the maps are built are not rectified: a few, then one for sure
         pub.publish(serialize_message(image_msg(pixels, 'bgr8', 70_000_000_000 + i)))
