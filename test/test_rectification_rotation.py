@@ -39,10 +39,11 @@ def calibration(model, R=R5):
     return CameraCalibration(1280, 720, np.array(c['K']), c['distortion_model'], np.array(c['D']), R, P_RECT)
 
 
-def opencv_maps(cal):
+def opencv_maps(cal, P=None):
+    """OpenCV's maps for the calibration (with another P when given)."""
     init = cv2.fisheye.initUndistortRectifyMap if cal.distortion_model == 'equidistant' \
         else cv2.initUndistortRectifyMap
-    return init(cal.K, cal.D, cal.R, cal.P, (cal.width, cal.height), cv2.CV_32FC1)
+    return init(cal.K, cal.D, cal.R, cal.P if P is None else P, (cal.width, cal.height), cv2.CV_32FC1)
 
 
 def as_float(rectifier):
@@ -74,16 +75,21 @@ def smooth_image(width=1280, height=720):
     return np.clip(value, 0, 255).astype(np.uint8)
 
 
-@pytest.mark.parametrize('model', CALIBRATIONS)
-def test_cli_rectify_with_a_rotated_calibration_is_opencvs(tmp_path, model):
-    cal = calibration(model)
+def rectified_by_cli(tmp_path, cal, *options):
+    """(raw image, `zeroshot-calib rectify --calibration` of it as float) for ``cal`` saved to a file."""
     cal_path = tmp_path / 'cal.yaml'
     cal.save(str(cal_path))
     src, dst = tmp_path / 'raw.png', tmp_path / 'rect.png'
     image = smooth_image()
     cv2.imwrite(str(src), image)
-    assert main(['rectify', str(src), '-o', str(dst), '--calibration', str(cal_path)]) == 0
-    ours = cv2.imread(str(dst), cv2.IMREAD_UNCHANGED).astype(float)
+    assert main(['rectify', str(src), '-o', str(dst), '--calibration', str(cal_path), *options]) == 0
+    return image, cv2.imread(str(dst), cv2.IMREAD_UNCHANGED).astype(float)
+
+
+@pytest.mark.parametrize('model', CALIBRATIONS)
+def test_cli_rectify_with_a_rotated_calibration_is_opencvs(tmp_path, model):
+    cal = calibration(model)
+    image, ours = rectified_by_cli(tmp_path, cal)
     mx, my = opencv_maps(cal)
     reference = cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).astype(float)
     inside = (mx > 1) & (mx < 1278) & (my > 1) & (my < 718)
@@ -99,17 +105,8 @@ def test_cli_rectify_with_a_rotated_calibration_and_a_chosen_p_keeps_r(tmp_path,
     (image_proc with that P would rotate the same way)."""
     from zeroshot_calib_ros.core.ros_data.rectify import new_camera_matrix
     cal = calibration(model)
-    cal_path = tmp_path / 'cal.yaml'
-    cal.save(str(cal_path))
-    src, dst = tmp_path / 'raw.png', tmp_path / 'rect.png'
-    image = smooth_image()
-    cv2.imwrite(str(src), image)
-    assert main(['rectify', str(src), '-o', str(dst), '--calibration', str(cal_path), '--balance', '0.3',
-                 '--fov-scale', '1.0']) == 0
-    ours = cv2.imread(str(dst), cv2.IMREAD_UNCHANGED).astype(float)
-    P = new_camera_matrix(cal.camera(), 0.3, 1.0)
-    init = cv2.fisheye.initUndistortRectifyMap if model == 'equidistant' else cv2.initUndistortRectifyMap
-    mx, my = init(cal.K, cal.D, cal.R, P, (cal.width, cal.height), cv2.CV_32FC1)
+    image, ours = rectified_by_cli(tmp_path, cal, '--balance', '0.3', '--fov-scale', '1.0')
+    mx, my = opencv_maps(cal, P=new_camera_matrix(cal.camera(), 0.3, 1.0))
     reference = cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).astype(float)
     inside = (mx > 1) & (mx < 1278) & (my > 1) & (my < 718)
     assert inside.mean() > 0.5
