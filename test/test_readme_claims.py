@@ -666,7 +666,8 @@ def test_all_zero_fit_is_published_as_1e_20_which_keeps_rectifying_and_moves_no_
     carries D = (0, 0, 0, 1e-20); image_geometry's rule (any non-zero coefficient: rectify) holds
     for it; OpenCV's fisheye projection and maps with it and with all-zero D differ by <= 1e-18 px."""
     W, H = 640, 480
-    solution = solve_zero_shot(CameraSpec(W, H, hfov=120), projection='wide-equidistant')
+    # one FOV read as the pure law (lens_prior=False; by default it would be a real lens' shape)
+    solution = solve_zero_shot(CameraSpec(W, H, hfov=120), projection='wide-equidistant', lens_prior=False)
     assert solution.f == pytest.approx((W / 2) / math.radians(60), rel=1e-12)
     calibration, fit = CameraCalibration.from_solution(solution)
     assert np.abs(fit.D).max() < 1e-12
