@@ -808,11 +808,14 @@ def test_lens_profile_figures_are_the_results_file():
     section = readme_section('Accuracy you can expect')
     results = (RESULTS / 'lens_profiles.md').read_text()
     rows = markdown_rows(results)
-    by_key = {(r[0], r[2]): r for r in rows if len(r) == 9}
+    by_key = {(r[0], r[2]): r for r in rows if len(r) == 13}
     groups = {'wide': 'wide (hfov >= 100)', 'narrow': 'narrow (hfov < 100)', 'any FOV': 'any FOV >= 180 deg'}
     estimators = {'perspective (h+v)': 'perspective', "paper's zero-shot (h+v)": 'paper ZS',
                   'ours, adaptive projection (h+v+d)': 'ours auto', 'ours, wide model (h+v+d)': 'wide (h+v+d)',
-                  "perspective, paper's zero-shot": 'perspective'}
+                  "perspective, paper's zero-shot": 'perspective', 'ours, one FOV (d only)': 'd only',
+                  'ours, one FOV (h only)': 'h only', 'ours, one FOV (v only)': 'v only',
+                  'ours, circle alone': 'circle', 'one FOV read as a pinhole (d only)': 'd only, no prior',
+                  'one FOV read as a pinhole (h only)': 'h only, no prior'}
     group = None
     checked = 0
     for cells in markdown_rows(section)[1:]:
@@ -826,8 +829,29 @@ def test_lens_profile_figures_are_the_results_file():
             assert _agrees(cells[3], float(r[5])) and _agrees(cells[4], float(r[6])), cells
             focal = re.findall(r'[\d.]+', cells[5])
             assert _agrees(focal[0], float(r[7])) and _agrees(focal[1], float(r[8])), cells
+        # the held-out split: median, true <= 2x stated (whole per cent), median true / stated
+        for mine, theirs in ((6, 10), (7, 11), (8, 12)):
+            if cells[mine] != '-':
+                assert _agrees(cells[mine], _number(r[theirs])), (cells, mine)
         checked += 1
-    assert checked == 8
+    assert checked == 22
+    # the sentences under the table quote the same rows (held-out medians and honesty of one FOV)
+    wide, narrow = 'wide (hfov >= 100)', 'narrow (hfov < 100)'
+    text = ' '.join(section.split())
+    for quoted, (group, name, column) in {
+            '14.91 px with dfov alone': (wide, 'd only', 10), '11.78 px with hfov alone': (wide, 'h only', 10),
+            'gave 183.11 /': (wide, 'd only, no prior', 10), '/ 112.16 px': (wide, 'h only, no prior', 10),
+            'held for 35 %': (wide, 'd only, no prior', 11), '/ 36 % of them': (wide, 'h only, no prior', 11),
+            '(now 93 %)': (wide, 'd only', 11), 'too (6.93 /': (narrow, 'd only', 10),
+            '/ 4.48 against': (narrow, 'h only', 10), 'against 7.54 /': (narrow, 'd only, no prior', 10),
+            '/ 4.96 px)': (narrow, 'h only, no prior', 10), 'alone give 19.90 /': (wide, 'd only', 5),
+            '/ 15.89 px': (wide, 'h only', 5)}.items():
+        assert quoted in text, quoted
+        assert _agrees(re.search(r'[\d.]+', quoted).group(0), _number(by_key[(group, name)][column])), quoted
+    # the targets of one FOV on the wide held-out lenses, and the honesty of every kind of input
+    assert _number(by_key[(wide, 'd only')][10]) <= 20 and _number(by_key[(wide, 'h only')][10]) <= 12
+    for name in ('paper ZS', 'ours auto', 'd only', 'h only', 'v only', 'circle'):
+        assert _number(by_key[('all', name)][11]) >= 80, name
     source = re.search(r'(\d+) profiles; (\d+) usable, (\d+) excluded', results).groups()
     assert ('4,913' in section and '4,621' in README and '292 profiles' in section and
             source == ('4913', '4621', '292'))
