@@ -578,21 +578,24 @@ def write_failures(records: List[Record], path: str):
 
 
 def write_details(records: List[Record], path: str, estimators=None):
-    """One row per profile: implied FOVs, largest ray angle, and per estimator the RMS (px at
-    1920 wide) and focal error (fraction), empty where it failed or the profile was excluded."""
+    """One row per profile: implied FOVs, largest ray angle, whether it is held out, and per
+    estimator the RMS (px at 1920 wide), the focal error (fraction) and the stated uncertainty_px
+    (px at 1920 wide), empty where it failed, states none or the profile was excluded."""
     estimators = ESTIMATORS if estimators is None else estimators
     with open(path, 'w', newline='') as f:
         writer = csv.writer(f)
-        writer.writerow(['index', 'path', 'width', 'height', 'hfov', 'vfov', 'dfov', 'max_angle_deg', 'excluded']
-                        + [f'rms[{e.name}]' for e in estimators] + [f'focal_error[{e.name}]' for e in estimators])
+        writer.writerow(['index', 'path', 'width', 'height', 'hfov', 'vfov', 'dfov', 'max_angle_deg', 'excluded',
+                         'held_out'] + [f'rms[{e.name}]' for e in estimators]
+                        + [f'focal_error[{e.name}]' for e in estimators] + [f'stated[{e.name}]' for e in estimators])
         for r in records:
             fov = [f'{r.fovs[k]:.6f}' if k in r.fovs else '' for k in ('hfov', 'vfov', 'dfov')]
             writer.writerow([r.index, r.path, r.width, r.height, *fov,
                              '' if not math.isfinite(r.max_angle_deg) else f'{r.max_angle_deg:.4f}',
-                             r.excluded or '']
+                             r.excluded or '', int(r.held_out)]
                             + [f'{r.rms[e.name]:.6f}' if e.name in r.rms else '' for e in estimators]
                             + [f'{r.focal_error[e.name]:.8f}' if e.name in r.focal_error else ''
-                               for e in estimators])
+                               for e in estimators]
+                            + [f'{r.stated[e.name]:.6f}' if e.name in r.stated else '' for e in estimators])
 
 
 def main(argv=None) -> int:
