@@ -143,6 +143,9 @@ def test_portrait_one_fov_is_the_transposed_landscape():
     portrait = solve_zero_shot(CameraSpec(1080, 1920, vfov=118))
     assert portrait.f == pytest.approx(landscape.f, rel=1e-12) and portrait.omega == pytest.approx(landscape.omega)
     assert portrait.lens_shape.side == landscape.lens_shape.side == 'long_side'
+    # a square image: hfov and vfov are the same extent, and give the same camera
+    across, up = (solve_zero_shot(CameraSpec(1000, 1000, **{name: 150.0})) for name in ('hfov', 'vfov'))
+    assert across.f == up.f and across.omega == up.omega
 
 
 def test_lens_prior_false_is_the_papers_reading():

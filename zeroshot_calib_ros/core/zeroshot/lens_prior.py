@@ -57,11 +57,14 @@ class LensPriorError(ValueError):
 
 def side_of(fov_name: str, width: int, height: int) -> str:
     """What a spec FOV spans: 'long_side', 'short_side' or 'diagonal' (a portrait image's hfov
-    spans its short side; a square image's hfov its long side)."""
+    spans its short side; a square image's hfov and vfov both its long side, so that they give
+    the same camera)."""
     if fov_name == 'dfov':
         return 'diagonal'
+    if width == height:
+        return 'long_side'
     across_width = fov_name == 'hfov'
-    return 'long_side' if across_width == (width >= height) else 'short_side'
+    return 'long_side' if across_width == (width > height) else 'short_side'
 
 
 @dataclass(frozen=True)
