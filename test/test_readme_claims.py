@@ -838,16 +838,23 @@ def test_lens_profile_figures_are_the_results_file():
     # the sentences under the table quote the same rows (held-out medians and honesty of one FOV)
     wide, narrow = 'wide (hfov >= 100)', 'narrow (hfov < 100)'
     text = ' '.join(section.split())
-    for quoted, (group, name, column) in {
-            '14.91 px with dfov alone': (wide, 'd only', 10), '11.78 px with hfov alone': (wide, 'h only', 10),
-            'gave 183.11 /': (wide, 'd only, no prior', 10), '/ 112.16 px': (wide, 'h only, no prior', 10),
-            'held for 35 %': (wide, 'd only, no prior', 11), '/ 36 % of them': (wide, 'h only, no prior', 11),
-            '(now 93 %)': (wide, 'd only', 11), 'too (6.93 /': (narrow, 'd only', 10),
-            '/ 4.48 against': (narrow, 'h only', 10), 'against 7.54 /': (narrow, 'd only, no prior', 10),
-            '/ 4.96 px)': (narrow, 'h only, no prior', 10), 'alone give 19.90 /': (wide, 'd only', 5),
-            '/ 15.89 px': (wide, 'h only', 5)}.items():
-        assert quoted in text, quoted
-        assert _agrees(re.search(r'[\d.]+', quoted).group(0), _number(by_key[(group, name)][column])), quoted
+    number = r'([\d.]+)'
+    sentences = [  # (the README's words around its figures, the results cells they quote)
+        (rf'wide held-out lenses: {number} px with dfov alone, {number} px with hfov alone',
+         [(wide, 'd only', 10), (wide, 'h only', 10)]),
+        (rf'as a pinhole gave {number} / {number} px with an error bar that held for {number} % / {number} % of them '
+         rf'\(now {number} % / {number} %\)', [(wide, 'd only, no prior', 10), (wide, 'h only, no prior', 10),
+                                             (wide, 'd only, no prior', 11), (wide, 'h only, no prior', 11),
+                                             (wide, 'd only', 11), (wide, 'h only', 11)]),
+        (rf'pinhole reading too \({number} / {number} against {number} / {number} px\)',
+         [(narrow, 'd only', 10), (narrow, 'h only', 10), (narrow, 'd only, no prior', 10),
+          (narrow, 'h only, no prior', 10)]),
+        (rf'dfov / hfov alone give {number} / {number} px', [(wide, 'd only', 5), (wide, 'h only', 5)])]
+    for pattern, cells in sentences:
+        found = re.search(pattern, text)
+        assert found, pattern
+        for quoted, (group, name, column) in zip(found.groups(), cells):
+            assert _agrees(quoted, _number(by_key[(group, name)][column])), (pattern, quoted)
     # the targets of one FOV on the wide held-out lenses, and the honesty of every kind of input
     assert _number(by_key[(wide, 'd only')][10]) <= 20 and _number(by_key[(wide, 'h only')][10]) <= 12
     for name in ('paper ZS', 'ours auto', 'd only', 'h only', 'v only', 'circle'):
