@@ -131,7 +131,8 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
-    package_data={package_name: ['data/*.csv']},  # camera presets (zeroshot-calib presets)
+    # camera presets (zeroshot-calib presets) and the lens-law prior (core/zeroshot/lens_prior.py)
+    package_data={package_name: ['data/*.csv']},
     data_files=[
         ('share/ament_index/resource_index/packages',
             ['resource/' + package_name]),

@@ -11,7 +11,11 @@ estimator receives is what the calibration implies:
   angles add up to more than 180 degrees (a lens seeing beyond its side) the angle is measured
   through the optical axis (360 degrees minus the plain angle), which is what a spec sheet's
   "200 degrees" means (``wide_fov.fields_of_view_through_axis``).
-* An estimator receives W, H and the FOVs (h + v, or h + v + d), never the calibration.
+* An estimator receives W, H and the FOVs (h + v, h + v + d, or one of them alone), never the
+  calibration. The circle form ("circle"): an image circle as wide as the image's short side,
+  centred on the image, and the FOV across its horizontal diameter at the principal point's row
+  (what ``terms.FovTerm`` measures); its error is measured over the grid pixels inside that
+  circle, as its error bar is.
 
 Error of an estimate, per profile:
 
@@ -22,6 +26,12 @@ Error of an estimate, per profile:
   1920-px-wide image;
 * focal: |f - (fx + fy) / 2| / ((fx + fy) / 2).
 
+Honesty, on the held-out split only (``build_lens_prior.held_out``: the camera models the
+lens-law prior was not built from): every estimator of the solver also states ``uncertainty_px``
+(``zero_shot_uncertainty``, FOV tolerance 1 degree, scaled to 1920 px like the error); the
+table gives the share of held-out lenses whose true error is at most twice the stated one and
+the median of true / stated.
+
 Profiles an estimator cannot handle (it refuses the spec, or the estimate cannot image some of
 the true rays) are counted per estimator in the table and listed in ``--failures FILE``
 (default: next to ``--out``). Profiles whose ground truth is itself broken (Kannala-Brandt
@@ -31,6 +41,8 @@ accepts) are excluded, counted, and listed with the reason in the same file.
     .venv/bin/python benchmarks/lens_profiles.py                      # full run, markdown to stdout
     .venv/bin/python benchmarks/lens_profiles.py --out benchmarks/results/lens_profiles.md
     .venv/bin/python benchmarks/lens_profiles.py --limit 200          # quick run
+
+``ZEROSHOT_SHARED_DATA`` names the shared data folder when it is not ../shared/data.
 """
 from __future__ import annotations
 
@@ -47,15 +59,19 @@ from typing import Callable, Dict, List, Optional
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for _path in (ROOT, ROOT / 'benchmarks'):
+    if str(_path) not in sys.path:
+        sys.path.insert(0, str(_path))
 
-from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera, PinholeCamera  # noqa: E402
+from build_lens_prior import held_out, shared_data_dir  # noqa: E402
+from zeroshot_calib_ros.core.estimation.terms import FOV_TOLERANCE_DEG  # noqa: E402
+from zeroshot_calib_ros.core.estimation.uncertainty import zero_shot_uncertainty  # noqa: E402
+from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera, PinholeCamera, angle_between  # noqa: E402
 from zeroshot_calib_ros.core.zeroshot.solver import NoConvergence, solve_zero_shot  # noqa: E402
 from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec, SpecError  # noqa: E402
 from zeroshot_calib_ros.core.lens.wide_fov import fields_of_view_through_axis  # noqa: E402
 
-DEFAULT_CSV = ROOT.parent / 'shared' / 'data' / 'lens_profiles_dev.csv'
+DEFAULT_CSV = shared_data_dir() / 'lens_profiles_dev.csv'
 GRID = (33, 19)
 REFERENCE_WIDTH = 1920.0
 WIDE_HFOV = 100.0
@@ -72,6 +88,8 @@ COLUMNS = ('w', 'h', 'fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'k3', 'k4')
 class Profile:
     index: int
     path: str
+    brand: str
+    model: str
     width: int
     height: int
     fx: float
@@ -83,6 +101,11 @@ class Profile:
     @property
     def focal(self) -> float:
         return (self.fx + self.fy) / 2.0
+
+    @property
+    def held_out(self) -> bool:
+        """Not among the lenses the lens-law prior was built from (build_lens_prior.held_out)."""
+        return held_out(self.brand, self.model)
 
     def camera(self) -> 'GroundTruthCamera':
         return GroundTruthCamera(self.fx, self.fy, self.cx, self.cy, self.width, self.height, self.D)
@@ -96,7 +119,8 @@ def load_profiles(path=DEFAULT_CSV, limit: Optional[int] = None) -> List[Profile
             if limit is not None and i >= limit:
                 break
             v = {k: float(row[k]) for k in COLUMNS}
-            profiles.append(Profile(i, row.get('path', str(i)), int(v['w']), int(v['h']), v['fx'],
+            profiles.append(Profile(i, row.get('path', str(i)), row.get('brand', ''), row.get('model', ''),
+                                    int(v['w']), int(v['h']), v['fx'],
                                     v['fy'], v['cx'], v['cy'],
                                     np.array([v['k1'], v['k2'], v['k3'], v['k4']])))
     return profiles
@@ -182,11 +206,33 @@ def estimate_perspective(width, height, fovs):
     return PinholeCamera(f, f, width / 2.0, height / 2.0, width, height)
 
 
-def _solved(projection, names):
+def _solved(projection, names, lens_prior=True):
     def estimate(width, height, fovs):
         spec = CameraSpec(width, height, **{n: fovs[n] for n in names})
-        return solve_zero_shot(spec, projection).camera
+        return solve_zero_shot(spec, projection, lens_prior=lens_prior)
     return estimate
+
+
+def circle_radius_of(width, height) -> float:
+    """The image circle of the circle form: as wide as the short side, centred on the image."""
+    return min(width, height) / 2.0
+
+
+def circle_fov(camera, width, height) -> float:
+    """Degrees across the circle's horizontal diameter at the principal point's row, through the
+    axis beyond 180 (``terms.FovTerm``'s circle)."""
+    r = circle_radius_of(width, height)
+    rays = camera.unproject(np.array([[width / 2.0 - r, camera.cy], [width / 2.0 + r, camera.cy]]))
+    off_axis = np.arctan2(np.linalg.norm(rays[:, :2], axis=-1), rays[:, 2])
+    angle = float(angle_between(rays[0], rays[1]))
+    if off_axis[0] + off_axis[1] > math.pi:
+        angle = 2.0 * math.pi - angle
+    return math.degrees(angle)
+
+
+def estimate_circle(width, height, fovs):
+    spec = CameraSpec(width, height, circle_diameter=2.0 * circle_radius_of(width, height), circle_fov=fovs['circle'])
+    return solve_zero_shot(spec, 'auto')
 
 
 @dataclass
@@ -194,6 +240,9 @@ class Estimator:
     name: str
     description: str
     estimate: Callable
+    """(W, H, fovs) -> a camera, or a solve_zero_shot solution (which also states its error bar)."""
+    inside_circle: bool = False
+    """Errors over the grid pixels inside the circle form's image circle only."""
 
 
 ESTIMATORS = [
@@ -208,7 +257,19 @@ ESTIMATORS = [
               _solved('wide', ('hfov', 'vfov', 'dfov'))),
     Estimator('wide (h+v)', "angle-space wide-FOV model from hfov + vfov only (projection='wide', h+v)",
               _solved('wide', ('hfov', 'vfov'))),
+    Estimator('d only', "one FOV, dfov alone: the lens shape of real lenses of that FOV "
+              "(solve_zero_shot, 'auto'; core/zeroshot/lens_prior.py)", _solved('auto', ('dfov',))),
+    Estimator('h only', 'one FOV, hfov alone (as d only)', _solved('auto', ('hfov',))),
+    Estimator('v only', 'one FOV, vfov alone (as d only)', _solved('auto', ('vfov',))),
+    Estimator('circle', 'the circle form alone: an image circle as wide as the short side and its FOV; '
+              'the pure equidistant law (errors inside the circle)', estimate_circle, inside_circle=True),
+    Estimator('d only, no prior', "dfov alone read as the paper reads one FOV (lens_prior=False): a pinhole "
+              "below 180 degrees, the pure law a = 1 from 180", _solved('auto', ('dfov',), lens_prior=False)),
+    Estimator('h only, no prior', 'hfov alone, lens_prior=False (as d only, no prior)',
+              _solved('auto', ('hfov',), lens_prior=False)),
 ]
+HONESTY_FACTOR = 2.0
+"""A stated error bar is honest for a lens when its true error is at most this many times it."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -299,15 +360,21 @@ class Record:
     excluded: Optional[str] = None
     """Category of why the ground truth is unusable (None: usable)."""
     excluded_detail: str = ''
+    held_out: bool = False
+    """A camera model the lens-law prior was not built from."""
     rms: Dict[str, float] = field(default_factory=dict)
     """Reprojection RMS (px, scaled to a 1920-px-wide image) per estimator."""
+    stated: Dict[str, float] = field(default_factory=dict)
+    """Stated uncertainty_px (scaled like ``rms``) per estimator that states one (held-out only,
+    unless every profile was asked for)."""
     focal_error: Dict[str, float] = field(default_factory=dict)
     failures: Dict[str, str] = field(default_factory=dict)
 
 
-def evaluate_profile(profile: Profile, estimators=None) -> Record:
+def evaluate_profile(profile: Profile, estimators=None, honesty: str = 'none') -> Record:
+    """``honesty``: whose stated error bars to compute: 'held-out' profiles, 'all' or 'none'."""
     estimators = ESTIMATORS if estimators is None else estimators
-    record = Record(profile.index, profile.path, profile.width, profile.height)
+    record = Record(profile.index, profile.path, profile.width, profile.height, held_out=profile.held_out)
     gt = profile.camera()
     problem = ground_truth_problem(gt)
     if problem:
@@ -324,31 +391,42 @@ def evaluate_profile(profile: Profile, estimators=None) -> Record:
         return record
     pixels = pixel_grid(profile.width, profile.height)
     rays = gt.unproject(pixels)
+    inside = np.hypot(pixels[:, 0] - profile.width / 2.0, pixels[:, 1] - profile.height / 2.0) \
+        <= circle_radius_of(profile.width, profile.height)
+    given = dict(fovs, circle=circle_fov(gt, profile.width, profile.height))
     scale = REFERENCE_WIDTH / profile.width
+    stating = honesty == 'all' or (honesty == 'held-out' and profile.held_out)
     for est in estimators:
         try:
-            camera = est.estimate(profile.width, profile.height, fovs)
+            solution = est.estimate(profile.width, profile.height, given)
         except (SpecError, NoConvergence, ValueError) as exc:
             record.failures[est.name] = f'refused: {exc}'
             continue
-        rms, _ = best_rotation_rms(camera, rays, pixels)
+        camera = getattr(solution, 'camera', solution)
+        mask = inside if est.inside_circle else slice(None)
+        rms, _ = best_rotation_rms(camera, rays[mask], pixels[mask])
         if not math.isfinite(rms):
             record.failures[est.name] = 'the estimate cannot image every true ray (rays beyond its field)'
             continue
         record.rms[est.name] = rms * scale
         record.focal_error[est.name] = abs(camera.fx - profile.focal) / profile.focal
+        if stating and hasattr(solution, 'spec'):
+            stated = zero_shot_uncertainty(solution.spec, FOV_TOLERANCE_DEG, solution).rms_px
+            if stated is not None:
+                record.stated[est.name] = stated * scale
     return record
 
 
-def _evaluate_chunk(profiles):
-    return [evaluate_profile(p) for p in profiles]
+def _evaluate_chunk(args):
+    profiles, honesty = args
+    return [evaluate_profile(p, honesty=honesty) for p in profiles]
 
 
-def evaluate_all(profiles: List[Profile], jobs: int = 1) -> List[Record]:
+def evaluate_all(profiles: List[Profile], jobs: int = 1, honesty: str = 'held-out') -> List[Record]:
     if jobs <= 1 or len(profiles) < 50:
-        return _evaluate_chunk(profiles)
+        return _evaluate_chunk((profiles, honesty))
     from multiprocessing import get_context
-    chunks = [profiles[i::jobs * 8] for i in range(jobs * 8)]
+    chunks = [(profiles[i::jobs * 8], honesty) for i in range(jobs * 8)]
     with get_context('fork' if hasattr(os, 'fork') else 'spawn').Pool(jobs) as pool:
         results = pool.map(_evaluate_chunk, chunks)
     records = [r for chunk in results for r in chunk]
@@ -376,20 +454,35 @@ def _stat(values, q):
     return float(np.percentile(values, q)) if len(values) else float('nan')
 
 
+def honesty(records: List[Record], name: str):
+    """(n, share with true <= HONESTY_FACTOR x stated, median true / stated) over the records
+    with both a true error and a stated one for estimator ``name``."""
+    pairs = [(r.rms[name], r.stated[name]) for r in records if name in r.rms and name in r.stated]
+    if not pairs:
+        return 0, float('nan'), float('nan')
+    true, stated = np.array(pairs).T
+    return len(pairs), float(np.mean(true <= HONESTY_FACTOR * stated)), float(np.median(true / stated))
+
+
 def summary_rows(records: List[Record], estimators=None):
     """[(group, n_profiles, estimator, n_handled, n_failed, rms median, rms p90, ferr median,
-    ferr p90)] over the usable (not excluded) records."""
+    ferr p90, held-out n, held-out rms median, honest share, median true / stated)] over the
+    usable (not excluded) records; the last four on the held-out ones."""
     estimators = ESTIMATORS if estimators is None else estimators
     usable = [r for r in records if r.excluded is None]
     rows = []
     for group, member in GROUPS:
         members = [r for r in usable if member(r)]
+        held = [r for r in members if r.held_out]
         for est in estimators:
             rms = [r.rms[est.name] for r in members if est.name in r.rms]
             ferr = [r.focal_error[est.name] for r in members if est.name in r.focal_error]
             failed = sum(1 for r in members if est.name in r.failures)
+            held_rms = [r.rms[est.name] for r in held if est.name in r.rms]
+            _, honest, ratio = honesty(held, est.name)
             rows.append((group, len(members), est.name, len(rms), failed,
-                         _stat(rms, 50), _stat(rms, 90), 100 * _stat(ferr, 50), 100 * _stat(ferr, 90)))
+                         _stat(rms, 50), _stat(rms, 90), 100 * _stat(ferr, 50), 100 * _stat(ferr, 90),
+                         len(held_rms), _stat(held_rms, 50), 100 * honest, ratio))
     return rows
 
 
@@ -428,18 +521,26 @@ def markdown_report(records: List[Record], source: str, seconds: float, failures
         f'in {seconds:.0f} s.',
         '',
         'Reprojection: RMS pixel error over a 33 x 19 grid spanning the image after the best '
-        'rotation, scaled to a 1920-px-wide image. Focal: |f - (fx+fy)/2| / ((fx+fy)/2). '
+        'rotation, scaled to a 1920-px-wide image (circle: the grid pixels inside the image '
+        'circle). Focal: |f - (fx+fy)/2| / ((fx+fy)/2). '
         'Cells: median / 90th percentile over the profiles the estimator handled (n); '
         '"failed": profiles it refused or whose true rays it cannot image (listed in the '
         'failures file).',
         '',
+        f'Held-out split (the {sum(r.held_out for r in usable)} usable profiles of camera models the lens-law '
+        'prior was not built from, benchmarks/build_lens_prior.py): "held-out n" and its median RMS; '
+        f'"honest": the share of them whose true error is at most {HONESTY_FACTOR:g} x the stated '
+        'uncertainty_px (FOV tolerance 1 degree); "true/stated": the median of true / stated '
+        '("-": the estimator states none).',
+        '',
         '| group | profiles | estimator | n | failed | RMS px median | RMS px p90 | focal err % median '
-        '| focal err % p90 |',
-        '|---|---:|---|---:|---:|---:|---:|---:|---:|',
+        '| focal err % p90 | held-out n | held-out RMS px median | honest (held-out) | true/stated median |',
+        '|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|',
     ]
-    for group, n, name, handled, failed, m, p90, fm, fp90 in summary_rows(records, estimators):
+    for group, n, name, handled, failed, m, p90, fm, fp90, hn, hm, honest, ratio in summary_rows(records, estimators):
         lines.append(f'| {group} | {n} | {name} | {handled} | {failed} | {_fmt(m)} | {_fmt(p90)} | '
-                     f'{_fmt(fm, 1)} | {_fmt(fp90, 1)} |')
+                     f'{_fmt(fm, 1)} | {_fmt(fp90, 1)} | {hn} | {_fmt(hm)} | '
+                     f'{_fmt(honest, 0) + " %" if math.isfinite(honest) else "-"} | {_fmt(ratio)} |')
     present = {e.name for e in estimators}
     pairs = [(a, b) for a, b in HEAD_TO_HEAD if a in present and b in present]
     if pairs:
@@ -477,26 +578,30 @@ def write_failures(records: List[Record], path: str):
 
 
 def write_details(records: List[Record], path: str, estimators=None):
-    """One row per profile: implied FOVs, largest ray angle, and per estimator the RMS (px at
-    1920 wide) and focal error (fraction), empty where it failed or the profile was excluded."""
+    """One row per profile: implied FOVs, largest ray angle, whether it is held out, and per
+    estimator the RMS (px at 1920 wide), the focal error (fraction) and the stated uncertainty_px
+    (px at 1920 wide), empty where it failed, states none or the profile was excluded."""
     estimators = ESTIMATORS if estimators is None else estimators
     with open(path, 'w', newline='') as f:
         writer = csv.writer(f)
-        writer.writerow(['index', 'path', 'width', 'height', 'hfov', 'vfov', 'dfov', 'max_angle_deg', 'excluded']
-                        + [f'rms[{e.name}]' for e in estimators] + [f'focal_error[{e.name}]' for e in estimators])
+        writer.writerow(['index', 'path', 'width', 'height', 'hfov', 'vfov', 'dfov', 'max_angle_deg', 'excluded',
+                         'held_out'] + [f'rms[{e.name}]' for e in estimators]
+                        + [f'focal_error[{e.name}]' for e in estimators] + [f'stated[{e.name}]' for e in estimators])
         for r in records:
             fov = [f'{r.fovs[k]:.6f}' if k in r.fovs else '' for k in ('hfov', 'vfov', 'dfov')]
             writer.writerow([r.index, r.path, r.width, r.height, *fov,
                              '' if not math.isfinite(r.max_angle_deg) else f'{r.max_angle_deg:.4f}',
-                             r.excluded or '']
+                             r.excluded or '', int(r.held_out)]
                             + [f'{r.rms[e.name]:.6f}' if e.name in r.rms else '' for e in estimators]
                             + [f'{r.focal_error[e.name]:.8f}' if e.name in r.focal_error else ''
-                               for e in estimators])
+                               for e in estimators]
+                            + [f'{r.stated[e.name]:.6f}' if e.name in r.stated else '' for e in estimators])
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    parser.add_argument('--csv', default=str(DEFAULT_CSV), help='lens profiles CSV (default: %(default)s)')
+    parser.add_argument('--csv', default=str(DEFAULT_CSV),
+                        help='lens profiles CSV (default: %(default)s; ZEROSHOT_SHARED_DATA names its folder)')
     parser.add_argument('--limit', type=int, help='only the first N profiles (quick run)')
     parser.add_argument('--out', help='also write the markdown table to this file')
     parser.add_argument('--failures', help='CSV of excluded profiles and estimator failures '
@@ -505,19 +610,26 @@ def main(argv=None) -> int:
                                           'this CSV (about 1 MB for the full set)')
     parser.add_argument('--jobs', type=int, default=min(2, os.cpu_count() or 1),
                         help='worker processes (default: %(default)s)')
+    parser.add_argument('--honesty', choices=('held-out', 'all', 'none'), default='held-out',
+                        help='whose stated error bars to compute (default: %(default)s; 0.1 s per '
+                             'profile and estimator)')
     args = parser.parse_args(argv)
     if not os.path.exists(args.csv):
-        print(f'lens_profiles: error: {args.csv} not found', file=sys.stderr)
+        print(f'lens_profiles: error: {args.csv} not found (ZEROSHOT_SHARED_DATA names the shared data folder)',
+              file=sys.stderr)
         return 2
     start = time.perf_counter()
     profiles = load_profiles(args.csv, args.limit)
-    records = evaluate_all(profiles, args.jobs)
+    records = evaluate_all(profiles, args.jobs, args.honesty)
     seconds = time.perf_counter() - start
     failures = args.failures
     if failures is None and args.out:
         failures = os.path.splitext(args.out)[0] + '_failures.csv'
     details = args.details
-    shown_csv = os.path.relpath(args.csv, ROOT) if os.path.isabs(args.csv) else args.csv
+    # the shared data folder by the name the repository gives it, wherever ZEROSHOT_SHARED_DATA puts it
+    shown_csv = ('../shared/data/' + os.path.basename(args.csv)
+                 if os.path.abspath(os.path.dirname(args.csv)) == os.path.abspath(shared_data_dir())
+                 else os.path.relpath(args.csv, ROOT) if os.path.isabs(args.csv) else args.csv)
     report = markdown_report(records, shown_csv, seconds,
                              os.path.relpath(failures, ROOT) if failures else None)
     print(report, end='')

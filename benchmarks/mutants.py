@@ -48,7 +48,8 @@ MUTANTS = [
         file=f'{ZEROSHOT}/solver.py',
         old='        f = spec.half_extents()[name] / _tan_half(deg)',
         new='        f = spec.half_extents()[name] / math.tan(math.radians(deg))',
-        behaviour='hfov alone: perspective only, f = (W/2) / tan(hfov/2) (Table 2 C905, f* 1042.3)',
+        behaviour="one FOV read as the paper reads it (lens_prior=False): a pinhole, f = (W/2) / tan(hfov/2) "
+                  '(Table 2 C905, f* 1042.3)',
         tests=['test/test_solver.py::test_hfov_alone_is_perspective'],
     ),
     dict(
@@ -414,8 +415,8 @@ MUTANTS = [
     dict(
         id='cli-json-warning-dropped',
         file=f'{PKG}/cli.py',
-        old="    warnings += _add_uncertainty(summary, spec, solution, args.fov_tolerance)\n    summary['warning'] = warnings\n",
-        new="    warnings += _add_uncertainty(summary, spec, solution, args.fov_tolerance)\n    summary['warning'] = []\n",
+        old="    warnings += _assumption_warnings(summary)\n    summary['warning'] = warnings\n",
+        new="    warnings += _assumption_warnings(summary)\n    summary['warning'] = []\n",
         behaviour='solve --json: warning is the list of one-line warnings ([] when none)',
         tests=['test/test_cli.py', 'test/test_readme.py', '-k', 'warning or json'],
     ),

@@ -139,7 +139,7 @@ def test_all_zero_fit_of_a_distorting_lens_keeps_downstream_rectifying():
 
 
 def test_undistorted_pinhole_keeps_zero_plumb_bob():
-    solution = solve_zero_shot(CameraSpec(1280, 720, hfov=63.1))
+    solution = solve_zero_shot(CameraSpec(1280, 720, hfov=63.1), lens_prior=False)  # a pinhole
     calibration, _ = CameraCalibration.from_solution(solution, 'plumb_bob')
     assert calibration.D.tolist() == [0.0] * 5
 

@@ -57,7 +57,9 @@ def test_batch_reports_bad_rows_and_goes_on(tmp_path, capsys):
     assert [r['name'] for r in lines] == ['w1', 'broken', 'c905', 'typo']
     assert 'error' not in lines[0] and lines[0]['f'] == pytest.approx(876.0, abs=0.05)
     assert lines[1]['row'] == 2 and 'hfov = -5.0' in lines[1]['error']
-    assert lines[2]['omega'] == 0
+    # one FOV: the lens shape of real lenses of that FOV, said in the record (a narrow lens: nearly a pinhole)
+    assert lines[2]['f'] == pytest.approx(1042.3, rel=0.01) and lines[2]['assumption'].startswith('one FOV')
+    assert lines[2]['assumption'] in lines[2]['warning']
     assert "height = '72O'" in lines[3]['error']
     assert not yaml_dir.exists(), 'no file is written while a row fails (so a fixed rerun gives the whole set)'
     assert 'no files written' in err
@@ -493,7 +495,9 @@ def test_solve_circle_is_the_closed_form_equidistant_circle(capsys):
     assert record['f'] == pytest.approx(f, rel=1e-12) and (record['cx'], record['cy']) == (960, 540)
     np.testing.assert_allclose(record['K'], [[f, 0, 960], [0, f, 540], [0, 0, 1]], rtol=1e-12)
     assert record['distortion_model'] == 'equidistant' and np.abs(record['D']).max() < 1e-12
-    assert record['fit_error_px'] < 1e-9 and err == []
+    # the one warning says what the circle alone leaves open: the pure law is assumed
+    assert record['fit_error_px'] < 1e-9 and record['warning'] == [record['assumption']]
+    assert err == [f"zeroshot-calib: warning: {record['assumption']}"] and 'pure equidistant law' in err[0]
     theta = np.radians([89.0, 60.0, 30.0, 89.0])
     phi = np.radians([0.0, 45.0, 120.0, 200.0])
     rays = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)

@@ -277,7 +277,9 @@ def test_refine_float_image_with_inf_or_nan_names_the_file(tmp_path, capsys, bad
 def test_refine_writes_no_output_when_the_debug_image_fails(tmp_path, capsys):
     path = tmp_path / 'thin.png'
     cv2.imwrite(str(path), np.tile(np.arange(0, 240, dtype=np.uint8)[:, None], (1, 1)))
-    status, out, err = run(capsys, 'refine', path, '--hfov', '100', '--yaml', tmp_path / 'out.yaml',
+    # the FOV across the 240-px side: one FOV takes a real lens' shape, and 100 degrees across the
+    # 1-px side would be a lens whose corners see nothing (the ROS fit refuses it before any file)
+    status, out, err = run(capsys, 'refine', path, '--vfov', '100', '--yaml', tmp_path / 'out.yaml',
                            '--debug-image', tmp_path / 'debug.png')
     one_line_error(status, err, str(path), '1x240', 'at least 32 px')
     assert not (tmp_path / 'out.yaml').exists() and not (tmp_path / 'debug.png').exists()

@@ -251,19 +251,24 @@ def test_read_only_parameters_refuse_new_values(peer, start_node, tmp_path):
 
 
 def test_an_exactly_zero_equidistant_fit_publishes_1e_20(peer, start_node):
-    """A pure equidistant lens (projection wide-equidistant, r = f theta, f = (w / 2) / (hfov / 2)):
-    its equidistant fit is exactly zero, which image_geometry / image_proc would read as "no
-    distortion"; the node publishes 1e-20 as k4. A pinhole (one FOV, omega 0, f = (w / 2) /
-    tan(hfov / 2)) in plumb_bob has no distortion: D stays exactly zero."""
-    start_node('--ros-args', '-p', 'width:=640', '-p', 'height:=480', '-p', 'hfov:=120',
-               '-p', 'projection:=wide-equidistant')
+    """A pure equidistant lens (the circle form alone, read as the pure law: r = f theta,
+    f = (d / 2) / (circle_fov / 2)): its equidistant fit is exactly zero, which image_geometry /
+    image_proc would read as "no distortion"; the node publishes 1e-20 as k4. A pinhole (hfov and
+    vfov of a pinhole, no barrel root: omega 0, f = (w / 2) / tan(hfov / 2)) in plumb_bob has no
+    distortion: D stays exactly zero. (One FOV is no pinhole: it takes a real lens' shape.)"""
+    start_node('--ros-args', '-p', 'width:=640', '-p', 'height:=480', '-p', 'circle_diameter:=640.0',
+               '-p', 'circle_fov:=120.0', '-p', 'projection:=wide-equidistant')
     infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
     peer.spin_until(lambda: infos, what='camera_info')
     assert infos[-1].k[0] == pytest.approx(320 / math.radians(60), rel=1e-9)
     assert infos[-1].distortion_model == 'equidistant' and list(infos[-1].d) == [0.0, 0.0, 0.0, 1e-20]
-    assert all(r.successful for r in set_parameters(peer, projection='equidistant', distortion_model='plumb_bob'))
+    f = 320 / math.tan(math.radians(60))
+    vfov = 2 * math.degrees(math.atan(240 / f)) + 1e-9  # a hair wider than the pinhole's: no barrel root
+    # one request, one change (the node applies SetParameters whole)
+    assert all(r.successful for r in set_parameters(peer, circle_diameter=0.0, circle_fov=0.0, hfov=120.0, vfov=vfov,
+                                                    projection='equidistant', distortion_model='plumb_bob'))
     peer.spin_until(lambda: infos[-1].distortion_model == 'plumb_bob', what='the plumb_bob calibration')
-    assert infos[-1].k[0] == pytest.approx(320 / math.tan(math.radians(60)), rel=1e-9)
+    assert infos[-1].k[0] == pytest.approx(f, rel=1e-9)
     assert list(infos[-1].d) == [0.0] * 5
 
 
@@ -286,7 +291,7 @@ BASE = dict(width=320, height=180, hfov=118.0, vfov=69.0, dfov=0.0, projection='
 # (name, value, None = rejected with a reason naming the parameter | the spec it is a valid camera of)
 BAD_VALUES = [
     ('hfov', float('nan'), None), ('hfov', float('inf'), None), ('hfov', -1.0, None),
-    ('hfov', 0.0, (320, 180, None, 69.0)),           # 0 = not given: vfov alone, a pinhole
+    ('hfov', 0.0, (320, 180, None, 69.0)),           # 0 = not given: vfov alone, a real lens' shape
     ('vfov', 1e308, None),
     ('hfov', 359.9, (320, 180, 359.9, 69.0)),        # a (wild) wide lens: both FOVs fit r = f' theta'
     ('hfov', 'wide', None), ('hfov', True, None), ('hfov', [118.0, 1.0], None), ('hfov', [1, 2], None),

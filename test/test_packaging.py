@@ -30,6 +30,8 @@ EXEC_DEPENDS = {
     'python3-opencv', 'python3-yaml',
 }
 TEST_DEPENDS = {'python3-pytest'}
+DATA_TABLES = ('camera_presets.csv', 'lens_prior.csv')
+"""zeroshot_calib_ros/data/: package data (setup.py package_data), in the wheel and the install tree."""
 # the rosdep key (package.xml) that provides each top-level module an installed file may import
 ROSDEP_KEY_OF_MODULE = {
     'rclpy': 'rclpy', 'rcl_interfaces': 'rcl_interfaces', 'sensor_msgs': 'sensor_msgs',
@@ -101,6 +103,16 @@ def test_pip_wheel_has_no_node_entry_point(source_copy, tmp_path):
     assert scripts.get('zeroshot-calib') == 'zeroshot_calib_ros.cli:main'
     assert 'node' not in scripts, scripts
     assert not any(n.endswith('/scripts/node') for n in names), names
+    # the package's tables travel with it (presets; the lens-law prior one-FOV specs are solved with)
+    for table in DATA_TABLES:
+        assert f'{PKG}/data/{table}' in names, names
+
+
+def test_colcon_install_tree_carries_the_data_tables():
+    _require_install_tree()
+    for table in DATA_TABLES:
+        found = list((INSTALL / 'lib').glob(f'python3*/site-packages/{PKG}/data/{table}'))
+        assert len(found) == 1 and found[0].read_bytes() == (ROOT / PKG / 'data' / table).read_bytes(), table
 
 
 def _setup_py_version(src):

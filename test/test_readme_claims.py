@@ -669,7 +669,8 @@ def test_all_zero_fit_is_published_as_1e_20_which_keeps_rectifying_and_moves_no_
     carries D = (0, 0, 0, 1e-20); image_geometry's rule (any non-zero coefficient: rectify) holds
     for it; OpenCV's fisheye projection and maps with it and with all-zero D differ by <= 1e-18 px."""
     W, H = 640, 480
-    solution = solve_zero_shot(CameraSpec(W, H, hfov=120), projection='wide-equidistant')
+    # one FOV read as the pure law (lens_prior=False; by default it would be a real lens' shape)
+    solution = solve_zero_shot(CameraSpec(W, H, hfov=120), projection='wide-equidistant', lens_prior=False)
     assert solution.f == pytest.approx((W / 2) / math.radians(60), rel=1e-12)
     calibration, fit = CameraCalibration.from_solution(solution)
     assert np.abs(fit.D).max() < 1e-12
@@ -810,11 +811,14 @@ def test_lens_profile_figures_are_the_results_file():
     section = readme_section('Accuracy you can expect')
     results = (RESULTS / 'lens_profiles.md').read_text()
     rows = markdown_rows(results)
-    by_key = {(r[0], r[2]): r for r in rows if len(r) == 9}
+    by_key = {(r[0], r[2]): r for r in rows if len(r) == 13}
     groups = {'wide': 'wide (hfov >= 100)', 'narrow': 'narrow (hfov < 100)', 'any FOV': 'any FOV >= 180 deg'}
     estimators = {'perspective (h+v)': 'perspective', "paper's zero-shot (h+v)": 'paper ZS',
                   'ours, adaptive projection (h+v+d)': 'ours auto', 'ours, wide model (h+v+d)': 'wide (h+v+d)',
-                  "perspective, paper's zero-shot": 'perspective'}
+                  "perspective, paper's zero-shot": 'perspective', 'ours, one FOV (d only)': 'd only',
+                  'ours, one FOV (h only)': 'h only', 'ours, one FOV (v only)': 'v only',
+                  'ours, circle alone': 'circle', 'one FOV read as a pinhole (d only)': 'd only, no prior',
+                  'one FOV read as a pinhole (h only)': 'h only, no prior'}
     group = None
     checked = 0
     for cells in markdown_rows(section)[1:]:
@@ -828,8 +832,36 @@ def test_lens_profile_figures_are_the_results_file():
             assert _agrees(cells[3], float(r[5])) and _agrees(cells[4], float(r[6])), cells
             focal = re.findall(r'[\d.]+', cells[5])
             assert _agrees(focal[0], float(r[7])) and _agrees(focal[1], float(r[8])), cells
+        # the held-out split: median, true <= 2x stated (whole per cent), median true / stated
+        for mine, theirs in ((6, 10), (7, 11), (8, 12)):
+            if cells[mine] != '-':
+                assert _agrees(cells[mine], _number(r[theirs])), (cells, mine)
         checked += 1
-    assert checked == 8
+    assert checked == 22
+    # the sentences under the table quote the same rows (held-out medians and honesty of one FOV)
+    wide, narrow = 'wide (hfov >= 100)', 'narrow (hfov < 100)'
+    text = ' '.join(section.split())
+    number = r'([\d.]+)'
+    sentences = [  # (the README's words around its figures, the results cells they quote)
+        (rf'wide held-out lenses: {number} px with dfov alone, {number} px with hfov alone',
+         [(wide, 'd only', 10), (wide, 'h only', 10)]),
+        (rf'as a pinhole gave {number} / {number} px with an error bar that held for {number} % / {number} % of them '
+         rf'\(now {number} % / {number} %\)', [(wide, 'd only, no prior', 10), (wide, 'h only, no prior', 10),
+                                             (wide, 'd only, no prior', 11), (wide, 'h only, no prior', 11),
+                                             (wide, 'd only', 11), (wide, 'h only', 11)]),
+        (rf'pinhole reading too \({number} / {number} against {number} / {number} px\)',
+         [(narrow, 'd only', 10), (narrow, 'h only', 10), (narrow, 'd only, no prior', 10),
+          (narrow, 'h only, no prior', 10)]),
+        (rf'dfov / hfov alone give {number} / {number} px', [(wide, 'd only', 5), (wide, 'h only', 5)])]
+    for pattern, cells in sentences:
+        found = re.search(pattern, text)
+        assert found, pattern
+        for quoted, (group, name, column) in zip(found.groups(), cells):
+            assert _agrees(quoted, _number(by_key[(group, name)][column])), (pattern, quoted)
+    # the targets of one FOV on the wide held-out lenses, and the honesty of every kind of input
+    assert _number(by_key[(wide, 'd only')][10]) <= 20 and _number(by_key[(wide, 'h only')][10]) <= 12
+    for name in ('paper ZS', 'ours auto', 'd only', 'h only', 'v only', 'circle'):
+        assert _number(by_key[('all', name)][11]) >= 80, name
     source = re.search(r'(\d+) profiles; (\d+) usable, (\d+) excluded', results).groups()
     assert ('4,913' in section and '4,621' in README and '292 profiles' in section and
             source == ('4913', '4621', '292'))

@@ -1,6 +1,7 @@
 """The wide-FOV zero-shot model (core/lens/wide_fov.py), its integration, and the lens-profile benchmark."""
 import importlib.util
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -20,7 +21,8 @@ from zeroshot_calib_ros.core.lens.wide_fov import WideFovCamera, fields_of_view_
 from zeroshot_calib_ros.core.zeroshot.wide_solver import WIDE_CHOICES, needs_wide_model
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO.parent / 'shared' / 'data'
+SHARED_DATA = Path(os.environ.get('ZEROSHOT_SHARED_DATA', REPO.parent / 'shared' / 'data'))
+"""../shared/data, or the copy ZEROSHOT_SHARED_DATA names."""
 W, H = 1920, 1080
 
 

@@ -230,6 +230,7 @@ def _cmd_solve(args):
     summary = solution_summary(solution, calibration, fit)
     warnings = solution.warnings + _fit_warnings(solution, calibration, fit)
     warnings += _add_uncertainty(summary, spec, solution, args.fov_tolerance)
+    warnings += _assumption_warnings(summary)
     summary['warning'] = warnings
     if args.yaml:
         _save_calibration(calibration, args.yaml)
@@ -246,19 +247,29 @@ def _cmd_solve(args):
 def _add_uncertainty(summary, spec, solution, fov_tolerance):
     """Put the zero-shot camera's error bar (core/estimation/uncertainty.py) into ``summary``;
     the ill-conditioning warning, if any, as a list."""
-    from .core.estimation.uncertainty import zero_shot_uncertainty  # scipy.optimize: only when asked
+    from .core.estimation.uncertainty import image_circle_radius, zero_shot_uncertainty  # scipy: only when asked
     uncertainty = zero_shot_uncertainty(spec, fov_tolerance, solution)
     summary['uncertainty_px'] = uncertainty.rms_px
     summary['uncertainty'] = uncertainty.reason
+    # of uncertainty_px, the part from the lens shapes a spec of one FOV (or the circle alone) leaves open
+    summary['uncertainty_lens_shape_px'] = uncertainty.lens_shape_px
+    summary['uncertainty_over'] = 'image circle' if image_circle_radius(spec) is not None else 'image'
     return [uncertainty.warning] if uncertainty.warning else []
+
+
+def _assumption_warnings(summary):
+    """The solution's assumption (one FOV: the lens shape of real lenses of that FOV) as a warning."""
+    return [summary['assumption']] if summary.get('assumption') else []
 
 
 def _uncertainty_line(summary, fov_tolerance):
     value = summary['uncertainty_px']
     if value is None:
         return f"error bar - ({summary.get('uncertainty') or 'not determined'})"
-    return (f'error bar {value:.2f} px (RMS over the image of the 1-sigma pixel error, FOVs +- '
-            f'{fov_tolerance:g} deg)')
+    shapes = summary.get('uncertainty_lens_shape_px')
+    shapes = '' if shapes is None else f' and the spread of real lens shapes of that FOV, {shapes:.3g} px of it'
+    return (f"error bar {value:.2f} px (RMS over the {summary.get('uncertainty_over', 'image')} of the 1-sigma "
+            f'pixel error, FOVs +- {fov_tolerance:g} deg{shapes})')
 
 
 BATCH_COLUMNS = ('name', 'width', 'height', 'hfov', 'vfov', 'dfov', 'circle_diameter', 'circle_fov')
@@ -406,6 +417,7 @@ def _solve_batch(args):
                       **solution_summary(solution, calibration, fit)}
             warnings = solution.warnings + _fit_warnings(solution, calibration, fit)
             warnings += _add_uncertainty(record, spec, solution, args.fov_tolerance)
+            warnings += _assumption_warnings(record)
             record['warning'] = warnings
             if args.yaml_dir is not None:
                 file_name = _yaml_file_name(name) or f'camera_{number}.yaml'

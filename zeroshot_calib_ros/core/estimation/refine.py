@@ -59,8 +59,8 @@ from ..zeroshot.spec import CameraSpec
 from .fit import SOLVE_TOL, LineFit, fit_lines
 from .problem import Problem
 from .terms import FOV_TOLERANCE_DEG, SHAPE_SIGMA, FovTerm, PrincipalPointPrior, ShapePrior
-from .uncertainty import (Uncertainty, displacement, pixel_grid, probability_other_is_better, problem_uncertainty,
-                          zero_shot_uncertainty)
+from .uncertainty import (Uncertainty, displacement, image_circle_radius, pixel_grid, probability_other_is_better,
+                          problem_uncertainty, zero_shot_uncertainty)
 
 MIN_LINES = 8
 MIN_POINTS = 6
@@ -320,7 +320,9 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
         if split:
             return refuse(f'{split}; all images together: {detail}')
         return refuse(detail)
-    if zs_u_px is not None and not ref_u.rms_px < zs_u_px:
+    # the circle form alone states its error bar over the image circle, the refined camera over the
+    # whole image: no comparison there (as before it had a bar); the other checks still apply
+    if zs_u_px is not None and image_circle_radius(spec) is None and not ref_u.rms_px < zs_u_px:
         return refuse(f'not more certain than zero-shot: {ref_u.rms_px:.3g} px against {zs_u_px:.3g} px')
     margin = ZERO_SHOT_MARGIN * width
     p_better, distance, spread = probability_other_is_better(u_layout, u_x, ref_u.covariance, zs, margin,

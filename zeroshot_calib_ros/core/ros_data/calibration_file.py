@@ -991,6 +991,8 @@ def solution_summary(solution: ZeroShotSolution, calibration: CameraCalibration,
         'hfov': fovs['hfov'], 'vfov': fovs['vfov'], 'dfov': fovs['dfov'],
         'root_found': solution.root_found,
         'dfov_residuals': solution.dfov_residuals,
+        # what the spec left open and was assumed (one FOV: the lens shape of real lenses), or None
+        'assumption': getattr(solution, 'assumption', None),
     })
 
 
@@ -1016,4 +1018,6 @@ def summary_text(summary: dict) -> str:
     ]
     for name, res in summary['dfov_residuals'].items():
         lines.append(f"  dfov residual {name:13s} {res:+.3f} deg" + ('  <- chosen' if name == summary['model'] else ''))
+    if summary.get('assumption'):
+        lines.append(f"assumed   {summary['assumption']}")
     return '\n'.join(lines)

@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import numpy as np
 
 from ..lens.models import ZeroShotCamera
 from .brent import brentq
+from .lens_prior import LensShape, a_for_law, focal_through, lens_shape
 from ..lens.projections import PROJECTIONS, FisheyeProjection
 from .consistency import check_fov_tolerance, fov_warnings
 from .spec import FOV_TOLERANCE_DEG, CameraSpec, SpecError
@@ -58,6 +59,20 @@ class ZeroShotSolution:
     warnings: List[str] = field(default_factory=list)
     """One line per way the solved camera misses the given FOVs by more than the tolerance
     (``consistency.fov_warnings``); [] when it shows them."""
+    lens_shape: Optional[LensShape] = None
+    """One FOV: the lens shape assumed from real lenses of that FOV (``lens_prior.py``); None
+    when the spec determines the shape itself."""
+
+    @property
+    def assumption(self) -> Optional[str]:
+        """What the solution assumes beyond the spec, in words (None: nothing)."""
+        if self.lens_shape is not None:
+            return self.lens_shape.assumption
+        if getattr(self.spec, 'circle_diameter', None) is not None and not self.spec.given():
+            law = getattr(self.camera.projection, 'law', self.camera.projection).name
+            return (f'circle only: the pure {law} law is assumed across the image circle (a = 1); give hfov '
+                    'or vfov too, or refine from images, to pin the lens shape')
+        return None
 
     @property
     def omega(self) -> float:
@@ -178,7 +193,7 @@ def _make_camera(spec, projection, omega, f):
 
 
 def solve_zero_shot(spec: CameraSpec, projection: str = 'auto', method: str = 'bracketed',
-                    fov_tolerance: float = FOV_TOLERANCE_DEG) -> ZeroShotSolution:
+                    fov_tolerance: float = FOV_TOLERANCE_DEG, lens_prior: bool = True) -> ZeroShotSolution:
     """Zero-shot calibration of ``spec``, with ``warnings`` when the solved camera misses a given
     FOV by more than ``fov_tolerance`` degrees (``consistency.py``).
 
@@ -193,35 +208,61 @@ def solve_zero_shot(spec: CameraSpec, projection: str = 'auto', method: str = 'b
     (a FOV of 180 degrees or more, the circle form, or image corners 90 degrees or more
     off-axis); every other spec gets the paper's result unchanged.
     ``method``: 'bracketed' (Brent, exact to machine precision) or 'newton' (the paper's).
+
+    One FOV (hfov, vfov or dfov, without the circle form) determines only one point of the lens
+    curve: the lens shape is that of the typical real lens of that FOV and aspect ratio
+    (``lens_prior.py``; ``lens_shape`` of the solution), and f follows from the FOV exactly.
+    Below 180 degrees with image corners below 90 degrees off-axis the camera is the paper's
+    model, else the wide model of the same law and a, so f is continuous through 180 degrees.
+    ``lens_prior=False``: the paper's reading instead, a pinhole (its C905 row; no camera past
+    180 degrees).
     """
     fov_tolerance = check_fov_tolerance(fov_tolerance)
-    solution = _solve_zero_shot(spec, projection, method)
+    solution = _solve_zero_shot(spec, projection, method, lens_prior)
     solution.warnings = fov_warnings(solution, fov_tolerance)
     return solution
 
 
-def _solve_zero_shot(spec: CameraSpec, projection: str, method: str) -> ZeroShotSolution:
+def _solve_zero_shot(spec: CameraSpec, projection: str, method: str, lens_prior: bool) -> ZeroShotSolution:
     if projection not in PROJECTION_CHOICES:
         raise SpecError('projection', projection, ', '.join(PROJECTION_CHOICES))
     if method not in ('bracketed', 'newton'):
         raise SpecError('method', method, 'bracketed, newton')
+    one_fov = lens_prior and len(spec.given()) == 1 and getattr(spec, 'circle_diameter', None) is None
     if projection in WIDE_CHOICES or (projection == 'auto' and needs_wide_model(spec)):
-        return _solve_wide(spec, projection)
+        return _solve_wide(spec, projection, one_fov)
     if getattr(spec, 'circle_diameter', None) is not None:
         raise SpecError('projection', projection, ', '.join(('auto',) + WIDE_CHOICES),
                         'the circular-fisheye form (circle_diameter, circle_fov) needs the wide model')
     try:
+        if one_fov:
+            return _solve_one_fov(spec, projection, method)
         return _solve_paper(spec, projection, method)
     except UnrepresentableSpec:
         if projection != 'auto':
             raise
-        return _solve_wide(spec, projection)
+        return _solve_wide(spec, projection, one_fov)
 
 
-def _solve_wide(spec: CameraSpec, projection: str) -> ZeroShotSolution:
-    fit = solve_wide(spec, None if projection in ('auto', WIDE) else projection)
+def _solve_wide(spec: CameraSpec, projection: str, one_fov: bool = False) -> ZeroShotSolution:
+    fit = solve_wide(spec, None if projection in ('auto', WIDE) else projection, one_fov)
     residuals = {law: res['dfov'] for law, res in fit.residuals.items() if 'dfov' in res}
-    return ZeroShotSolution(spec, fit.camera, fit.root_found, fit.focal_estimates, 'bracketed', residuals)
+    return ZeroShotSolution(spec, fit.camera, fit.root_found, fit.focal_estimates, 'bracketed', residuals,
+                            lens_shape=fit.lens_shape)
+
+
+def _solve_one_fov(spec: CameraSpec, projection: str, method: str) -> ZeroShotSolution:
+    """One FOV: the lens shape of real lenses of that FOV (``lens_prior.py``), f from the FOV; the
+    paper's camera (UnrepresentableSpec where its image corners reach 90 degrees off-axis)."""
+    (name, deg), = spec.given().items()
+    proj = PROJECTIONS[DEFAULT_PROJECTION if projection == 'auto' else projection]
+    _check_representable(spec, proj)
+    shape = lens_shape(name, deg, spec.width, spec.height)
+    radius, half_angle = spec.half_extents()[name], math.radians(deg) / 2.0
+    a = a_for_law(shape, proj, radius, half_angle, spec.diagonal / 2.0, math.radians(89.9))
+    f = focal_through(proj, a, radius, half_angle)
+    camera = _make_camera(spec, proj, a / f, f)
+    return ZeroShotSolution(spec, camera, False, {name: f}, method, lens_shape=shape)
 
 
 def _solve_paper(spec: CameraSpec, projection: str, method: str) -> ZeroShotSolution:
@@ -229,7 +270,7 @@ def _solve_paper(spec: CameraSpec, projection: str, method: str) -> ZeroShotSolu
     given = spec.given()
 
     if len(given) == 1:
-        # Perspective only (the paper's C905): one FOV fixes f, nothing constrains w.
+        # Perspective only (the paper's C905, lens_prior=False): one FOV fixes f, nothing constrains w.
         (name, deg), = given.items()
         proj = PROJECTIONS[DEFAULT_PROJECTION if projection == 'auto' else projection]
         _check_representable(spec, proj)

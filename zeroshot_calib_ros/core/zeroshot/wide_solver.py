@@ -5,8 +5,9 @@ D/2, and the circular-fisheye form (``CameraSpec.circle_diameter`` px, ``circle_
 circle_diameter / 2; square pixels tie the focal length f. Two constraints (the first two of
 circle, hfov, vfov, dfov with different radii: hfov + vfov for the paper's spec) fix a and f
 exactly: a solves rho(psi(t_a; a)) / rho(psi(t_b; a)) = r_a / r_b (the paper's eq. 27 in angle
-space; bracketed on a log grid of a and refined by Brent). With one constraint the pure law
-a = 1 is assumed (the usual circular-fisheye reading: f = r / rho(theta)). Further constraints
+space; bracketed on a log grid of a and refined by Brent). With the circle alone the pure law
+a = 1 is assumed (the usual circular-fisheye reading: f = r / rho(theta)); with one FOV
+(``one_fov``) a is that of real lenses of that FOV (``lens_prior.py``). Further constraints
 (dfov for an h+v spec) choose the law and, when the pair has several roots, the root: the one
 whose predicted FOVs miss the extra constraints least. Without extra constraints the law is
 equidistant (the paper's default; if it cannot meet the pair, whichever law can) and
@@ -33,6 +34,7 @@ import numpy as np
 
 from ..lens.projections import PROJECTIONS, FisheyeProjection
 from .brent import brentq
+from .lens_prior import LensShape, a_for_law, lens_shape
 from ..lens.wide_fov import WIDE, WIDE_LAWS, WideFovCamera, WideProjection, psi, wide_projection
 from .spec import CameraSpec, SpecError
 
@@ -143,6 +145,8 @@ class WideFit:
     residuals: Dict[str, Dict[str, float]] = field(default_factory=dict)
     """Per law ('wide-<law>'): predicted minus given FOV (degrees) of each constraint outside
     the primary pair."""
+    lens_shape: Optional[LensShape] = None
+    """One FOV with ``one_fov``: the shape of real lenses of that FOV that a was taken from."""
 
 
 def _camera(spec, law, a, f):
@@ -173,12 +177,14 @@ def _pair_candidates(laws, outer: Constraint, inner: Constraint) -> list:
     return candidates
 
 
-def solve_wide(spec: CameraSpec, law: Optional[str] = None) -> WideFit:
+def solve_wide(spec: CameraSpec, law: Optional[str] = None, one_fov: bool = False) -> WideFit:
     """Zero-shot fit of the angle-space model to ``spec`` (module docstring).
 
     ``law``: None chooses (equidistant, or by the extra constraints when there are any); a law
-    name or 'wide-<law>' fixes it. Raises SpecError when no camera of the family meets the
-    spec's primary constraints (or they contradict a radially symmetric lens)."""
+    name or 'wide-<law>' fixes it. ``one_fov``: a spec of one FOV (hfov, vfov or dfov, no circle)
+    takes a from real lenses of that FOV (``lens_prior.py``) instead of the pure law a = 1.
+    Raises SpecError when no camera of the family meets the spec's primary constraints (or they
+    contradict a radially symmetric lens)."""
     constraints = spec_constraints(spec)
     if not constraints:
         raise SpecError('hfov', None, 'at least one FOV or the circle form', 'no field of view given')
@@ -193,7 +199,16 @@ def solve_wide(spec: CameraSpec, law: Optional[str] = None) -> WideFit:
     else:
         laws = [PROJECTIONS['equidistant']]
     pair = _primary_pair(constraints)
-    if len(pair) == 1:
+    shape = None
+    if len(pair) == 1 and one_fov and pair[0].name != 'circle':
+        # One FOV: the shape of real lenses of that FOV, f through the FOV (lens_prior.py).
+        c = pair[0]
+        shape = lens_shape(c.name, c.fov, spec.width, spec.height)
+        candidates = []
+        for lw in laws:
+            a = a_for_law(shape, lw, c.radius, c.half_angle, spec.diagonal / 2.0)
+            candidates.append((lw, a, c.radius * a / float(lw.rho(psi(c.half_angle, a))), False))
+    elif len(pair) == 1:
         # One radius: f from the pure law a = 1 (what "a 190-degree circular fisheye of 1080 px"
         # means for an equidistant lens; choose another law with 'wide-<law>').
         c = pair[0]
@@ -240,4 +255,4 @@ def solve_wide(spec: CameraSpec, law: Optional[str] = None) -> WideFit:
             focal[c.name] = c.radius / math.tan(c.half_angle) if c.fov < 180 else math.nan
         else:
             focal[c.name] = c.radius * camera.a / float(camera.law.rho(psi(c.half_angle, camera.a)))
-    return WideFit(camera, root, focal, {k: v[0] for k, v in residuals.items()})
+    return WideFit(camera, root, focal, {k: v[0] for k, v in residuals.items()}, shape)
