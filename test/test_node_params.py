@@ -175,7 +175,7 @@ def _stream_until_refined(peer, node, frames, tmp_path):  # noqa: F811
     diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
     infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
     peer.spin_until(lambda: infos and diagnostics, what='camera_info and /diagnostics')
-    stream(peer, frames, lambda: diagnostics_value(diagnostics, 'source') == 'refined', timeout=90)
+    stream(peer, frames, lambda: diagnostics_value(diagnostics, 'source') == 'refined', timeout=180)
     return diagnostics
 
 
@@ -230,11 +230,11 @@ def test_one_frame_of_another_size_first_does_not_block_refinement(peer, start_n
     peer.spin_until(lambda: diagnostics_value(diagnostics, 'refine_frames') == '1', timeout=60,
                     what='the odd frame processed')
     # then the stream's own size: refinement goes on at that size
-    stream(peer, frames, lambda: int(diagnostics_value(diagnostics, 'refine_frames')) >= 4, timeout=90)
+    stream(peer, frames, lambda: int(diagnostics_value(diagnostics, 'refine_frames')) >= 4, timeout=180)
     assert diagnostics_value(diagnostics, 'refine_state') != 'error', diagnostics_value(diagnostics, 'refine_reason')
     refine_warnings = [line for line in node.log.splitlines() if 'WARN' in line and 'refine' in line]
     assert len(refine_warnings) <= 1, refine_warnings
-    stream(peer, frames, lambda: diagnostics_value(diagnostics, 'source') == 'refined', timeout=90)
+    stream(peer, frames, lambda: diagnostics_value(diagnostics, 'source') == 'refined', timeout=180)
 
 
 NARROW = KannalaBrandtCamera(420.0, 420.0, 340.0, 168.0, 640, 360, np.array([0.12, -0.03, 0.0, 0.0]))
@@ -251,7 +251,7 @@ def test_refine_publishes_and_saves_the_configured_plumb_bob_model(peer, start_n
     diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
     infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
     peer.spin_until(lambda: infos and diagnostics, what='camera_info and /diagnostics')
-    stream(peer, room, lambda: diagnostics_value(diagnostics, 'source') == 'refined', timeout=90)
+    stream(peer, room, lambda: diagnostics_value(diagnostics, 'source') == 'refined', timeout=180)
     stream(peer, room, lambda: infos[-1].k[2] != infos[0].k[2], timeout=5)
     info = infos[-1]
     assert info.distortion_model == 'plumb_bob' and len(info.d) == 5, (info.distortion_model, info.d)
