@@ -302,3 +302,28 @@ def test_a_spec_whose_fovs_the_camera_misses_is_warned_at_start_up_on_a_change_a
     lines = turned.log.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith('zeroshot_calib: error: width, height = ') and \
         'width and height look swapped' in lines[0], turned.log
+
+
+def test_one_fov_is_warned_as_an_assumption_at_start_up_and_named_in_diagnostics_until_a_second_fov(peer, start_node):
+    """hfov alone: the lens shape is assumed from real lenses of that FOV (a fisheye, not a
+    pinhole: f near 896 px, where the pinhole reading gave 577). The node says so once as a WARN
+    (as the CLI's warning) and /diagnostics carries it as `assumption` while staying OK (the
+    camera is usable, only less certain); giving vfov pins the shape and the key goes away."""
+    diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
+    node = start_node('--ros-args', '-p', 'width:=1920', '-p', 'height:=1080', '-p', 'hfov:=118')
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos, what='camera_info')
+    assert 800 < infos[-1].k[0] < 1000, infos[-1].k  # a fisheye's f, not the pinhole's 577
+    warned = [line for line in node.log.splitlines() if line.startswith('[WARN]') and 'one FOV (hfov 118 deg)' in line]
+    assert len(warned) == 1 and 'give a second FOV' in warned[0], node.log
+
+    def status():
+        return diagnostics[-1].status[0] if diagnostics else None
+    peer.spin_until(lambda: status() is not None, what='/diagnostics')
+    assert status().level == DiagnosticStatus.OK
+    assert 'one FOV (hfov 118 deg)' in diagnostics_value(diagnostics, 'assumption')
+
+    assert set_parameters(peer, vfov=69.0)[0].successful
+    peer.spin_until(lambda: 'assumption' not in {kv.key for kv in status().values}, what='assumption gone')
+    assert status().level == DiagnosticStatus.OK
+    assert node.log.count('[WARN]') == 1, node.log

@@ -619,6 +619,8 @@ class ZeroShotCalibNode(Node):
             status.level = DiagnosticStatus.WARN
             status.message += ": the spec's FOVs do not fit the image (spec_warning)"
             values['spec_warning'] = ' | '.join(self._active.spec_warnings)
+        if self._active.assumption:  # usable, only less certain: said, not a WARN level
+            values['assumption'] = self._active.assumption
         if self._uncalibrated is not None and not self._camera_exists():
             self._uncalibrated = None  # the camera has stopped
         if self._uncalibrated is not None:

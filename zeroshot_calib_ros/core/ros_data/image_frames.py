@@ -234,6 +234,9 @@ class ActiveCalibration:
 
     spec_warnings: Tuple[str, ...] = ()
     """Solved from a spec: the given FOVs its camera misses (``ZeroShotSolution.warnings``)."""
+    assumption: Optional[str] = None
+    """Solved from a spec that leaves the lens shape open (one FOV): what was assumed, in words
+    (``ZeroShotSolution.assumption``)."""
 
     def __init__(self, calibration: CameraCalibration, camera: CameraModel, source: str,
                  generation: int = 0, rectify: bool = False, interpolation: int = 1,

@@ -258,15 +258,18 @@ def solve_from_settings(settings: Settings, generation: int, build_maps: bool = 
                         map_budget_bytes: Optional[int] = None):
     """ActiveCalibration solved from the spec, and its summary (maps built unless ``build_maps``
     is False: then ``prepare()`` builds them). The solution's warnings (given FOVs its camera
-    misses, at the default tolerance) are the summary's ``warning`` and ``active.spec_warnings``."""
+    misses, at the default tolerance) are the summary's ``warning`` and ``active.spec_warnings``;
+    what it assumed (one FOV: the lens shape) is ``active.assumption`` and a warning too."""
     solution = solve_zero_shot(settings.spec, settings.projection)
     calibration, fit = CameraCalibration.from_solution(
         solution, settings.distortion_model, settings.balance, settings.fov_scale, settings.camera_name)
     active = ActiveCalibration(calibration, solution.camera, 'spec', generation, settings.rectify,
                                settings.interpolation, build_maps=build_maps, map_budget_bytes=map_budget_bytes)
     active.spec_warnings = tuple(solution.warnings)
+    active.assumption = solution.assumption
     summary = solution_summary(solution, calibration, fit)
-    summary['warning'] = list(solution.warnings)
+    # the assumption is a warning too, as in the CLI: the camera is usable, its lens shape a guess
+    summary['warning'] = list(solution.warnings) + ([solution.assumption] if solution.assumption else [])
     return active, summary
 
 
