@@ -148,6 +148,19 @@ def test_portrait_one_fov_is_the_transposed_landscape():
     assert across.f == up.f and across.omega == up.omega
 
 
+@pytest.mark.parametrize('portrait_fov, landscape_fov', [('hfov', 'vfov'), ('vfov', 'hfov'), ('dfov', 'dfov')])
+def test_every_fov_of_a_portrait_image_is_that_of_the_transposed_landscape(portrait_fov, landscape_fov):
+    """A portrait image's hfov spans its short side: it is the landscape image's vfov (the same
+    lens turned), looked up at the same aspect ratio; its dfov is the landscape dfov."""
+    for deg in (100.0, 150.0):
+        portrait = solve_zero_shot(CameraSpec(1080, 1920, **{portrait_fov: deg}))
+        landscape = solve_zero_shot(CameraSpec(1920, 1080, **{landscape_fov: deg}))
+        assert portrait.lens_shape.side == landscape.lens_shape.side
+        assert (portrait.lens_shape.a, portrait.lens_shape.a_low, portrait.lens_shape.a_high) == \
+            (landscape.lens_shape.a, landscape.lens_shape.a_low, landscape.lens_shape.a_high)
+        assert portrait.f == pytest.approx(landscape.f, rel=1e-12)
+
+
 def test_lens_prior_false_is_the_papers_reading():
     """The paper's reading of one FOV stays available: a pinhole below 180, the pure law from 180."""
     assert solve_zero_shot(CameraSpec(1280, 720, hfov=63.1), lens_prior=False).omega == 0
@@ -205,6 +218,199 @@ def test_solve_says_what_it_assumed(capsys):
                                  '--json'], capsys)
     record = json.loads(out)
     assert record['assumption'] is None and record['uncertainty_lens_shape_px'] is None and err == []
+
+
+def test_a_forced_wide_law_follows_the_prior_lens_across_the_short_side():
+    """vfov alone (the short side; the paper's laws put a 16:9 image's corners past 90 degrees
+    here, so only the wide ones): the forced law follows the table's lens over the whole image,
+    out to its corners (within 1 % of the width, as across the long side)."""
+    spec = CameraSpec(1920, 1080, vfov=100)
+    reference = solve_zero_shot(spec).camera
+    u, v = np.meshgrid(np.linspace(0, 1920, 17), np.linspace(0, 1080, 9))
+    rays = reference.unproject(np.stack([u.ravel(), v.ravel()], -1))
+    for projection in ('wide-equisolid', 'wide-stereographic'):
+        camera = solve_zero_shot(spec, projection).camera
+        assert fields_of_view_through_axis(camera)['vfov'] == pytest.approx(100, abs=1e-6)
+        moved = np.linalg.norm(camera.project(rays) - reference.project(rays), axis=-1)
+        assert np.sqrt(np.mean(moved ** 2)) < 0.01 * 1920, projection
+
+
+def test_the_node_reads_one_fov_as_the_cli_does():
+    """The node solves its spec as `solve` does: one FOV gets the lens shape of real lenses of that
+    FOV (never the pinhole), and the summary it logs at start-up says what was assumed."""
+    from zeroshot_calib_ros.core.ros_data.calibration_file import summary_text
+    from zeroshot_calib_ros.core.ros_data.node_parameters import PARAMETERS, Settings, solve_from_settings
+    values = {name: parameter.default for name, parameter in PARAMETERS.items()}
+    values.update(width=848, height=800, hfov=0.0, vfov=0.0, dfov=163.0, circle_diameter=0.0, circle_fov=0.0,
+                  preset='')
+    settings = Settings.from_values(values)
+    assert settings.spec == CameraSpec(*T265, dfov=163)
+    active, summary = solve_from_settings(settings, 0, build_maps=False)
+    cli = solve_zero_shot(CameraSpec(*T265, dfov=163))
+    assert summary['f'] == cli.f and summary['f'] > 1.5 * pinhole_focal(settings.spec, 'dfov')
+    assert summary['assumption'] == cli.assumption and cli.assumption.startswith('one FOV (dfov 163 deg)')
+    assert f"assumed   {cli.assumption}" in summary_text(summary).splitlines()
+
+
+# -- the table, read here on its own --------------------------------------------------------------
+
+def _table_rows():
+    """{(side, aspect or None, fov): (a, a_low, a_high, lenses)} of the shipped CSV, and its
+    'Training set: N lenses' count."""
+    import csv
+    lines = TABLE.read_text().splitlines()
+    total = next(int(line.split(':')[1].split()[0].replace(',', '')) for line in lines
+                 if line.startswith('# Training set:'))
+    rows = {}
+    for row in csv.DictReader(line for line in lines if not line.startswith('#')):
+        aspect = float(row['aspect']) if row['aspect'] else None
+        rows[(row['side'], aspect, float(row['fov_deg']))] = tuple(
+            float(row[k]) for k in ('a', 'a_low', 'a_high', 'lenses'))
+    return rows, total
+
+
+@pytest.mark.parametrize('size, fov, row', [
+    ((1920, 1080), dict(hfov=120.0), ('long_side', None, 120.0)),
+    ((1000, 1000), dict(vfov=150.0), ('long_side', None, 150.0)),  # a square image: the long side
+    ((1920, 1080), dict(vfov=100.0), ('short_side', 1.778, 100.0)),
+    ((1080, 1920), dict(hfov=100.0), ('short_side', 1.778, 100.0)),  # portrait: long / short is 16:9 too
+    ((1440, 1080), dict(dfov=150.0), ('diagonal', 1.333, 150.0)),
+    ((2592, 1080), dict(vfov=60.0), ('short_side', 2.4, 60.0)),
+])
+def test_a_spec_at_a_table_node_gets_that_rows_shape(size, fov, row):
+    """At a node of the table (its FOV and aspect ratio, long / short side) the shape is that
+    row's a and its 16th / 84th percentiles (to 0.1 %: the aspects are printed to 3 decimals,
+    16/9 is 1.7778 and interpolated a hair off the 1.778 node)."""
+    rows, _ = _table_rows()
+    a, a_low, a_high, _ = rows[row]
+    shape = solve_zero_shot(CameraSpec(*size, **fov)).lens_shape
+    assert shape.side == row[0]
+    assert (shape.a, shape.a_low, shape.a_high) == pytest.approx((a, a_low, a_high), rel=1e-3)
+    assert shape.a_low <= shape.a <= shape.a_high
+
+
+def test_between_nodes_the_table_is_interpolated_in_log_a_over_fov_and_log_aspect():
+    """1920 x 1200 (16:10, between the 4:3 and 16:9 nodes) and an FOV between two FOV nodes:
+    a is the bilinear interpolation of log a in FOV and in log aspect."""
+    rows, _ = _table_rows()
+    x = (math.log(1.6) - math.log(1.333)) / (math.log(1.778) - math.log(1.333))
+    for column in range(3):
+        log_a = {}
+        for aspect in (1.333, 1.778):
+            log_a[aspect] = 0.5 * (math.log(rows[('short_side', aspect, 100.0)][column]) +
+                                   math.log(rows[('short_side', aspect, 102.5)][column]))
+        expected = math.exp((1 - x) * log_a[1.333] + x * log_a[1.778])
+        shape = solve_zero_shot(CameraSpec(1920, 1200, vfov=101.25)).lens_shape
+        assert (shape.a, shape.a_low, shape.a_high)[column] == pytest.approx(expected, rel=1e-3), column
+
+
+def test_the_assumption_says_how_many_real_lenses_weigh_in():
+    """Where many real lenses have about that FOV the text gives their number and the table's
+    total; where few do (a 2.4:1 image's vfov of 110: 4 lenses) it says the nearest were used."""
+    rows, total = _table_rows()
+    lenses = rows[('long_side', None, 120.0)][3]
+    text = solve_zero_shot(CameraSpec(1920, 1080, hfov=120)).assumption
+    assert f'the {lenses:,.0f} real lenses of about that FOV among {total:,} calibrations' in text, text
+    assert rows[('short_side', 2.4, 110.0)][3] < 5
+    text = solve_zero_shot(CameraSpec(2592, 1080, vfov=110)).assumption
+    assert f'the nearest real lenses (few of {total:,} calibrations have that FOV)' in text, text
+
+
+def _camera_through(make, pixel, half_angle):
+    """make(f) whose ray at ``pixel`` is ``half_angle`` off-axis (bisection on f: a longer focal
+    length narrows every ray)."""
+    lo, hi = 1.0, 1e6
+    for _ in range(200):
+        f = math.sqrt(lo * hi)
+        ray = make(f).unproject(np.array([pixel], dtype=float))[0]
+        angle = math.atan2(math.hypot(ray[0], ray[1]), ray[2])
+        if not math.isfinite(angle) or angle > half_angle:
+            lo = f
+        else:
+            hi = f
+    return make(math.sqrt(lo * hi))
+
+
+def _rms_after_rotation(reference, other, pixels):
+    """RMS over ``pixels`` of other's minus reference's pixel of the reference's rays, after the
+    rotation of the rays that makes them agree best (least squares on a rotation vector)."""
+    from scipy.optimize import least_squares
+    from scipy.spatial.transform import Rotation
+    rays = reference.unproject(pixels)
+    rays = rays[np.all(np.isfinite(rays), axis=1)]
+    target = reference.project(rays)
+
+    def residual(w):
+        d = other.project(rays @ Rotation.from_rotvec(w).as_matrix().T) - target
+        return np.nan_to_num(d, nan=1e3).ravel()
+    d = residual(least_squares(residual, np.zeros(3), x_scale=1e-3).x).reshape(-1, 2)
+    return math.sqrt(float(np.mean(np.sum(d ** 2, axis=1))))
+
+
+def _grid(width, height, circle_radius=None):
+    u, v = np.meshgrid(np.linspace(0, width, 33), np.linspace(0, height, 19))
+    pixels = np.stack([u.ravel(), v.ravel()], -1)
+    if circle_radius is not None:
+        pixels = pixels[np.hypot(pixels[:, 0] - width / 2, pixels[:, 1] - height / 2) <= circle_radius]
+    return pixels
+
+
+def test_the_lens_shape_spread_is_the_rms_of_the_two_percentile_cameras():
+    """hfov 118 on 1920 x 1080: the spread is the root mean square, over the 33 x 19 grid and the
+    two cameras through the same FOV at the 16th and the 84th percentile of real lenses' a,
+    of their pixel displacement from the solved camera after the best rotation (built here
+    from the definition: the paper's equidistant camera, omega = a / f, f by bisection)."""
+    from zeroshot_calib_ros.core.lens.models import ZeroShotCamera
+    spec = CameraSpec(1920, 1080, hfov=118)
+    solution = solve_zero_shot(spec)
+    shape = solution.lens_shape
+    assert shape.a_low < shape.a < shape.a_high
+    squares = []
+    for a in (shape.a_low, shape.a_high):
+        other = _camera_through(lambda f: ZeroShotCamera(f, 960, 540, 1920, 1080, a / f), (1920, 540),
+                                math.radians(59))
+        squares.append(_rms_after_rotation(solution.camera, other, _grid(1920, 1080)) ** 2)
+    assert squares[0] > 0 and squares[1] > 0
+    u = zero_shot_uncertainty(spec, solution=solution)
+    assert u.lens_shape_px == pytest.approx(math.sqrt(sum(squares) / 2), rel=0.02)
+
+
+def test_the_circle_forms_spread_is_over_its_circle_from_lenses_across_its_side():
+    """The circle alone (T265: 800 px across its 800-px height, 163 degrees): the spread of real
+    lenses whose FOV of 163 degrees spans the image's short side, measured on the grid pixels
+    inside the circle (nothing outside it is imaged)."""
+    from zeroshot_calib_ros.core.lens.wide_fov import WideFovCamera
+    spec = CameraSpec(*T265, circle_diameter=800, circle_fov=163)
+    solution = solve_zero_shot(spec)
+    rows, _ = _table_rows()
+    nodes = sorted(a for (side, a, fov) in rows if side == 'short_side' and fov == 162.5)
+    # 848 / 800 = 1.06: between the 1:1 and 4:3 nodes, a interpolated in log aspect and FOV
+    x = math.log(1.06) / math.log(nodes[1])
+    squares = []
+    for column in (1, 2):
+        log_a = [0.8 * math.log(rows[('short_side', n, 162.5)][column]) +
+                 0.2 * math.log(rows[('short_side', n, 165.0)][column]) for n in nodes[:2]]
+        a = math.exp((1 - x) * log_a[0] + x * log_a[1])
+        other = _camera_through(lambda f: WideFovCamera(f, 424, 400, 848, 800, a / f, 'equidistant', 400.0),
+                                (824, 400), math.radians(81.5))
+        squares.append(_rms_after_rotation(solution.camera, other, _grid(848, 800, 400.0)) ** 2)
+    u = zero_shot_uncertainty(spec, solution=solution)
+    assert u.lens_shape_px == pytest.approx(math.sqrt(sum(squares) / 2), rel=0.02)
+
+
+def test_one_fov_error_bar_frees_the_principal_point_under_its_prior():
+    """One FOV: the FOV part of the error bar is the Laplace approximation of f AND the principal
+    point (prior: 1.1 % of the width); the FOV adds evidence, so the principal point is no less
+    certain than its prior says, and no more certain than zero."""
+    from zeroshot_calib_ros.core.estimation.terms import PRINCIPAL_POINT_SIGMA
+    spec = CameraSpec(1920, 1080, hfov=118)
+    u = zero_shot_uncertainty(spec)
+    names = list(u.names)
+    for name in ('f', 'cx', 'cy'):
+        variance = u.covariance[names.index(name), names.index(name)]
+        assert variance > 0, name
+        if name != 'f':
+            assert math.sqrt(variance) <= PRINCIPAL_POINT_SIGMA * 1920 * (1 + 1e-9), name
 
 
 # -- the table ------------------------------------------------------------------------------------

@@ -46,6 +46,8 @@ def test_swapped_fovs_or_sides_are_refused_in_one_line_saying_swapped(spec):
     text = str(err.value)
     assert err.value.field == field and words in text and 'allowed: ' in text and '\n' not in text
     assert err.value.field == field
+    if field == 'width, height':  # what it allows: the same size turned, or the FOVs swapped
+        assert f'allowed: {spec[1]}x{spec[0]}, or vfov greater than hfov' in text, text
     # the other orientation of the same camera is fine: the FOVs follow the sides
     w, h, hfov, vfov = spec
     assert CameraSpec(h, w, hfov, vfov) and CameraSpec(w, h, vfov, hfov)
@@ -133,6 +135,27 @@ def test_fov_tolerance_sets_the_threshold_and_is_checked():
         with pytest.raises(SpecError) as err:
             solve_zero_shot(spec, fov_tolerance=bad)
         assert err.value.field == 'fov_tolerance' and 'allowed: ' in str(err.value)
+
+
+def test_by_default_a_fov_missed_by_more_than_one_degree_is_warned_about():
+    """1920 x 1080, hfov 100: a lens without pincushion has vfov at most 67.7 deg; vfov 71 is 3.3
+    beyond, which the camera without a barrel root splits between the two FOVs (each missed by
+    about half of it, more than 1 and less than 2 degrees): a warning at the default tolerance,
+    none at 2 degrees."""
+    spec = CameraSpec(1920, 1080, 100, 71)
+    fovs = solve_zero_shot(spec).predicted_fovs()
+    assert 1 < abs(fovs['hfov'] - 100) < 2 and 1 < abs(fovs['vfov'] - 71) < 2
+    assert len(solve_zero_shot(spec).warnings) == 1 and 'tolerance 1 deg' in solve_zero_shot(spec).warnings[0]
+    assert solve_zero_shot(spec, fov_tolerance=2).warnings == []
+
+
+def test_a_tolerance_wider_than_15_degrees_holds_for_the_diagonal_beside_the_pair_too():
+    """The diagonal beside hfov + vfov is warned about beyond max(tolerance, 15 deg): 118 x 69 x 152
+    on 16:9 (the camera has a dfov of 135.7: 16.3 off) warns at the default tolerance and not at
+    --fov-tolerance 20."""
+    spec = CameraSpec(1920, 1080, 118, 69, 152)
+    assert len(solve_zero_shot(spec).warnings) == 1 and 'dfov: given 152 deg' in solve_zero_shot(spec).warnings[0]
+    assert solve_zero_shot(spec, fov_tolerance=20).warnings == []
 
 
 def test_a_diagonal_beside_hfov_and_vfov_is_warned_about_only_when_far_off():
@@ -237,6 +260,11 @@ def test_cli_refine_warns_in_its_text_and_json(tmp_path, capsys):
     assert any('warning: the FOVs do not fit a 320x180 image' in line for line in err), err
     status, out, err = run_main(['refine', str(image), '--hfov', '118', '--vfov', '69', '--json'], capsys)
     assert status == 0 and not any('given' in w for w in json.loads(out)['warning'])
+    # at --fov-tolerance 20 (118 / 117 are missed by 11.4 and 17.1 degrees): no warning
+    status, out, err = run_main(['refine', str(image), '--hfov', '118', '--vfov', '117', '--fov-tolerance', '20',
+                                 '--json'], capsys)
+    assert status == 0 and not any('do not fit' in w for w in json.loads(out)['warning'])
+    assert not any('do not fit' in line for line in err), err
 
 
 def test_cli_calibrate_warns_about_the_spec(tmp_path, capsys):
@@ -256,6 +284,13 @@ def test_cli_calibrate_warns_about_the_spec(tmp_path, capsys):
         status, out, err = run_main(['calibrate', '--corners', str(tmp_path / 'corners.json'), *honest,
                                      '--spec-as', spec_as, '--json'], capsys)
         assert status == 0 and not any('do not fit' in w for w in json.loads(out)['warning']), spec_as
+    # the same odd spec at a --fov-tolerance wider than its miss: no warning about it
+    missed = solve_zero_shot(CameraSpec(640, 480, float(odd[1]), float(odd[3]))).predicted_fovs()
+    tolerance = 1 + max(abs(missed['hfov'] - float(odd[1])), abs(missed['vfov'] - float(odd[3])))
+    status, out, err = run_main(['calibrate', '--corners', str(tmp_path / 'corners.json'), *odd,
+                                 '--fov-tolerance', f'{tolerance:.1f}', '--json'], capsys)
+    assert status == 0 and not any('do not fit' in w for w in json.loads(out)['warning'])
+    assert not any('do not fit' in line for line in err), err
 
 
 def test_the_documented_consistency_lines_are_what_solve_prints(capsys):
