@@ -116,7 +116,7 @@ def test_a_missing_params_file_is_one_clear_line(tmp_path, case):
     assert all(words in lines[0] for words in expected), output
 
 
-@pytest.mark.parametrize('delay', [0.05, 0.3, 0.6, 1.0, 2.5])
+@pytest.mark.parametrize('delay', [0.05, 0.1, 0.15, 0.2, 0.3, 0.45, 0.6, 1.0, 2.5])
 def test_ctrl_c_at_any_moment_ends_without_a_traceback(tmp_path, delay):
     env = ros_environment(97)
     env['ROS_HOME'] = str(tmp_path)

@@ -59,7 +59,7 @@ def test_streamed_frames_give_a_camera_closer_to_the_truth_than_zero_shot(refine
     buffer = room.copy()
     assert refiner.offer(buffer, time.monotonic())
     buffer[:] = 0  # the driver's next frame goes into the same buffer at once
-    wait_for(lambda: refiner.status.frames_processed == 1, 60, 'the first frame to be processed')
+    wait_for(lambda: refiner.status.frames_processed == 1, 180, 'the first frame to be processed')
     result = refiner.take_result()
     assert result is not None, refiner.status
     status = refiner.status
@@ -79,7 +79,7 @@ def test_streamed_frames_give_a_camera_closer_to_the_truth_than_zero_shot(refine
     # finish_after of them it finishes (no more frames taken, the worker gone)
     for i in range(2):
         assert refiner.offer(np.zeros((360, 640), np.uint8), time.monotonic() + 10.0 + i)
-        wait_for(lambda: refiner.status.frames_processed == 2 + i, 60, f'black frame {i + 1} to be processed')
+        wait_for(lambda: refiner.status.frames_processed == 2 + i, 180, f'black frame {i + 1} to be processed')
         status = refiner.status
         assert status.state == 'refined' and status.cameras_offered == 1 and refiner.take_result() is None, status
         assert 'not better than the camera in use' in status.reason and status.finished == (i == 1), status
@@ -95,12 +95,14 @@ def test_one_frame_is_kept_every_interval_and_the_others_are_not_copied(refiner_
     refiner = refiner_factory(SPEC, interval=interval)
     black = np.zeros((360, 640), np.uint8)  # no lines: the worker answers at once ("too few lines")
     assert refiner.offer(black, time.monotonic())
-    wait_for(lambda: refiner.status.frames_processed == 1, 60, 'the worker to answer a first frame')
+    wait_for(lambda: refiner.status.frames_processed == 1, 180, 'the worker to answer a first frame')
     assert refiner.status.state == 'collecting' and 'too few lines' in refiner.status.reason
     frame = np.full((1080, 1920, 3), 7, np.uint8)
     kept, skipped_seconds = [], []
     start = time.monotonic()
-    while time.monotonic() - start < 3.0:  # 30 fps for 3 s
+    # 30 fps for 3 s, or until 3 frames are kept: the worker runs at SCHED_IDLE, so on a machine
+    # whose cores are all busy it may answer late (the stream comes first), never early
+    while time.monotonic() - start < 3.0 or (len(kept) < 3 and time.monotonic() - start < 120.0):
         t = time.monotonic()
         before = time.perf_counter()
         if refiner.offer(frame, t):
@@ -139,7 +141,7 @@ def test_a_failing_worker_gives_a_state_not_a_crash(refiner_factory):
 def test_a_frame_the_worker_cannot_use_is_reported_and_the_worker_goes_on(refiner_factory):
     refiner = refiner_factory(SPEC, interval=0.0)
     assert refiner.offer(np.zeros((300, 640), np.uint8), 0.0)  # not the spec's aspect ratio
-    wait_for(lambda: refiner.status.frames_processed == 1, 60, 'the first frame to be processed')
+    wait_for(lambda: refiner.status.frames_processed == 1, 180, 'the first frame to be processed')
     status = refiner.status
     assert status.state == 'error' and 'aspect ratio' in status.reason, status
     assert refiner.offer(np.zeros((360, 640), np.uint8), 1.0)  # the worker is still there
@@ -168,7 +170,7 @@ def test_line_evidence_accumulates_over_the_newest_frames(refiner_factory):
                 (counts[1] + counts[2], 2, 'insufficient')]
     for i, (frame, (curves, used, state)) in enumerate(zip(frames, expected)):
         assert refiner.offer(frame, float(i))
-        wait_for(lambda: refiner.status.frames_processed == i + 1, 60, f'frame {i + 1} to be processed')
+        wait_for(lambda: refiner.status.frames_processed == i + 1, 180, f'frame {i + 1} to be processed')
         status = refiner.status
         assert (status.curves, status.frames_used, status.state) == (curves, used, state), status
         assert status.reason and refiner.take_result() is None
@@ -232,7 +234,7 @@ def test_a_worker_killed_after_its_first_camera_is_reported_failed(refiner_facto
     room = render(TRUE, 'room', seed=1)[0]
     refiner = refiner_factory(SPEC, interval=0.0)
     assert refiner.offer(room, 0.0)
-    wait_for(lambda: refiner.status.frames_processed == 1, 60, 'the first frame to be processed')
+    wait_for(lambda: refiner.status.frames_processed == 1, 180, 'the first frame to be processed')
     assert refiner.take_result() is not None and refiner.status.state == 'refined'
     os.kill(refiner.pid, signal.SIGKILL)
     wait_for(lambda: refiner.status.state == 'failed', 20, 'the kill to be noticed')
