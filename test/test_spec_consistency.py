@@ -302,3 +302,17 @@ def test_the_documented_consistency_lines_are_what_solve_prints(capsys):
     for command, line, kind in documented:
         status, _, err = run_main(['solve', *command.split()], capsys)
         assert status == (2 if kind == 'error' else 0) and err == [line], (command, err)
+
+
+def test_cli_rectify_says_what_one_fov_assumed_and_takes_the_fov_tolerance(tmp_path, capsys):
+    """rectify with one FOV rectifies through the lens shape of real lenses of that FOV and says
+    so (as solve does); --fov-tolerance sets its consistency threshold as in solve."""
+    image = tmp_path / 'in.png'
+    cv2.imwrite(str(image), np.full((108, 192), 128, np.uint8))
+    status, _, err = run_main(['rectify', str(image), '-o', str(tmp_path / 'out.png'), '--hfov', '170'], capsys)
+    assert status == 0 and (tmp_path / 'out.png').is_file()
+    assert len(err) == 1 and err[0].startswith('zeroshot-calib: warning: one FOV (hfov 170 deg): lens shape from'), err
+    for tolerance, warned in (('1', True), ('20', False)):
+        status, _, err = run_main(['rectify', str(image), '-o', str(tmp_path / 'out.png'), '--hfov', '118',
+                                   '--vfov', '100', '--fov-tolerance', tolerance], capsys)
+        assert status == 0 and any('vfov: given 100 deg' in line for line in err) == warned, (tolerance, err)

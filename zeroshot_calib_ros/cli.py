@@ -541,8 +541,8 @@ def _rectify_camera(args, width, height):
     if spec.width * height != spec.height * width:
         raise CliError(f'the image is {width}x{height} but the spec is {spec.width}x{spec.height}: '
                        'aspect ratios differ')
-    solution = solve_zero_shot(spec, args.model or 'auto')
-    _print_warnings(solution.warnings)
+    solution = solve_zero_shot(spec, args.model or 'auto', fov_tolerance=args.fov_tolerance)
+    _print_warnings(solution.warnings + ([solution.assumption] if solution.assumption else []))
     camera = solution.camera if (spec.width, spec.height) == (width, height) \
         else solution.camera.scaled(width, height)
     return camera, new_camera_matrix(camera, balance, fov_scale), None
@@ -1086,6 +1086,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_spec_arguments(rectify, size_required=False)
     _add_output_arguments(rectify)
     _add_circle_arguments(rectify)
+    _add_fov_tolerance_argument(rectify)
     rectify.add_argument('--preset', metavar='NAME',
                          help='the camera of a published spec (`zeroshot-calib presets`); flags override '
                               'its fields; an image of another size with the same aspect ratio is scaled')
