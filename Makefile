@@ -80,24 +80,18 @@ $(BSTAMP): $(VSTAMP) $(SOURCES)
 	|| { cat $(TOP)/log/latest_build/$(PKG)/stdout_stderr.log 2>/dev/null; exit 1; }
 	touch $@
 
-# Three runs at the same time: the ROS tests (multi-process: they spend much of their time
-# waiting for other processes, ~0.7 of a core), the ROS-free tests in the same environment
-# (ROS 2 Jazzy's venv, the newest numpy / OpenCV) and the ROS-free tests again on Jazzy's libraries
-# (numpy 1.26.4, SciPy 1.11.4, OpenCV 4.6), so the two cores are kept busy (wall time ~ the
-# longest run). The ROS-free runs' output is kept in log/test-ros-free.log and
-# log/test-jazzy-libs.log and printed after the ROS run's; the status fails if any run failed.
+# Everything with ROS and the newest libraries and, at the same time, the ROS-free tests on
+# Jazzy's libraries: the ROS tests spend much of their time waiting for other processes, so the
+# two runs share the cores (wall time ~ the longer run). The second run's output is kept in
+# log/test-jazzy-libs.log and printed after the first; the status fails if either run failed.
 test: $(BSTAMP) $(LSTAMP)
 	@mkdir -p $(TOP)/log
 	@cd $(TOP) && { ZEROSHOT_ROS_FREE_ONLY=1 $(LIBS_VENV)/bin/python -m pytest -q -p no:cacheprovider test \
 		$(PYTEST_ARGS) > log/test-jazzy-libs.log 2>&1; echo $$? > log/test-jazzy-libs.rc; } & \
-	cd $(TOP) && { ZEROSHOT_ROS_FREE_ONLY=1 $(ROS_ENV) $(VPY) -m pytest -q -p no:cacheprovider --durations=10 test \
-		$(PYTEST_ARGS) > log/test-ros-free.log 2>&1; echo $$? > log/test-ros-free.rc; } & \
-	cd $(TOP) && ZEROSHOT_ROS_ONLY=1 $(ROS_ENV) $(VPY) -m pytest -q --durations=10 test $(PYTEST_ARGS); ros=$$?; wait; \
-	echo '--- ROS-free tests, same environment (log/test-ros-free.log) ---'; \
-	cat log/test-ros-free.log; free=$$(cat log/test-ros-free.rc); \
+	cd $(TOP) && $(ROS_ENV) $(VPY) -m pytest -q --durations=15 test $(PYTEST_ARGS); ros=$$?; wait; \
 	echo '--- ROS-free tests on Ubuntu 24.04 libraries (log/test-jazzy-libs.log) ---'; \
 	cat log/test-jazzy-libs.log; libs=$$(cat log/test-jazzy-libs.rc); \
-	test $$ros -eq 0 && test $$free -eq 0 && test $$libs -eq 0
+	test $$ros -eq 0 && test $$libs -eq 0
 
 test-ros: $(BSTAMP)
 	cd $(TOP) && $(ROS_ENV) $(VPY) -m pytest -q test $(PYTEST_ARGS)

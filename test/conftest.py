@@ -7,7 +7,6 @@ numpy / SciPy / OpenCV 4 versions of Ubuntu 24.04, the platform of ROS 2 Jazzy
 that second run only.
 """
 import os
-from pathlib import Path
 
 NEEDS_ROS = ['test_node.py', 'test_node_contracts.py', 'test_node_files.py', 'test_bringup.py',
              'test_reliability.py', 'test_packaging.py', 'test_node_observable.py',
@@ -15,13 +14,7 @@ NEEDS_ROS = ['test_node.py', 'test_node_contracts.py', 'test_node_files.py', 'te
              'test_node_calibration_cycle.py']
 
 ROS_FREE_ONLY = os.environ.get('ZEROSHOT_ROS_FREE_ONLY') == '1'
-ROS_ONLY = os.environ.get('ZEROSHOT_ROS_ONLY') == '1'
-if ROS_FREE_ONLY and ROS_ONLY:
-    raise RuntimeError('ZEROSHOT_ROS_FREE_ONLY and ZEROSHOT_ROS_ONLY exclude each other')
-if ROS_ONLY:  # make test runs the rest in another process at the same time
-    collect_ignore = sorted(p.name for p in Path(__file__).parent.glob('test_*.py') if p.name not in NEEDS_ROS)
-else:
-    collect_ignore = NEEDS_ROS if ROS_FREE_ONLY else []
+collect_ignore = NEEDS_ROS if ROS_FREE_ONLY else []
 
 
 def pytest_report_header(config):
@@ -31,6 +24,4 @@ def pytest_report_header(config):
     header = f'numpy {numpy.__version__}, scipy {scipy.__version__}, OpenCV {cv2.__version__}'
     if ROS_FREE_ONLY:
         header += f"; ROS-free run: {', '.join(NEEDS_ROS)} not collected"
-    if ROS_ONLY:
-        header += f"; ROS run: only {', '.join(NEEDS_ROS)}"
     return header
