@@ -234,7 +234,9 @@ def test_launch_arguments_remap_topics_and_set_name_log_level_and_sim_time(peer,
         peer.spin_until(lambda: infos, timeout=30, what='/front/zeroshot/camera_info')
         ours = ('front_calib', '/front')
         publishers = peer.node.get_publishers_info_by_topic
-        assert [(i.node_name, i.node_namespace) for i in publishers('/front/zeroshot/camera_info')] == [ours]
+        # the endpoint can be discovered before its node's name is (_NODE_NAME_UNKNOWN_): wait for it
+        peer.spin_until(lambda: [(i.node_name, i.node_namespace) for i in publishers('/front/zeroshot/camera_info')]
+                        == [ours], timeout=10, what='/front/zeroshot/camera_info published by front_calib')
         assert not publishers('/front/camera_info'), 'the driver\'s camera_info topic must stay its own'
         peer.spin_until(lambda: [(i.node_name, i.node_namespace) for i in publishers('/front/zeroshot/image_rect')]
                         == [ours], timeout=10, what='/front/zeroshot/image_rect advertised by front_calib')
@@ -244,7 +246,9 @@ def test_launch_arguments_remap_topics_and_set_name_log_level_and_sim_time(peer,
         services = dict(peer.node.get_service_names_and_types_by_node(*ours))
         assert '/front/zeroshot/set_camera_info' in services and '/front/set_camera_info' not in services, services
         # use_sim_time: the node follows /clock, which nobody publishes: ROS time 0
-        assert any((i.node_name, i.node_namespace) == ours for i in peer.node.get_subscriptions_info_by_topic('/clock'))
+        peer.spin_until(lambda: any((i.node_name, i.node_namespace) == ours
+                                    for i in peer.node.get_subscriptions_info_by_topic('/clock')),
+                        timeout=10, what='/clock subscribed by front_calib')
         assert (infos[-1].header.stamp.sec, infos[-1].header.stamp.nanosec) == (0, 0)
         assert '[DEBUG]' in read_log(), read_log()[-3000:]
         assert alive(), read_log()[-3000:]
