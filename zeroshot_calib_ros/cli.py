@@ -230,7 +230,7 @@ def _cmd_solve(args):
     summary = solution_summary(solution, calibration, fit)
     warnings = solution.warnings + _fit_warnings(solution, calibration, fit)
     warnings += _add_uncertainty(summary, spec, solution, args.fov_tolerance)
-    warnings += _assumption_warnings(summary)
+    warnings += _assumption_warnings(solution)
     summary['warning'] = warnings
     if args.yaml:
         _save_calibration(calibration, args.yaml)
@@ -257,9 +257,9 @@ def _add_uncertainty(summary, spec, solution, fov_tolerance):
     return [uncertainty.warning] if uncertainty.warning else []
 
 
-def _assumption_warnings(summary):
+def _assumption_warnings(solution):
     """The solution's assumption (one FOV: the lens shape of real lenses of that FOV) as a warning."""
-    return [summary['assumption']] if summary.get('assumption') else []
+    return [solution.assumption] if solution.assumption else []
 
 
 def _uncertainty_line(summary, fov_tolerance):
@@ -417,7 +417,7 @@ def _solve_batch(args):
                       **solution_summary(solution, calibration, fit)}
             warnings = solution.warnings + _fit_warnings(solution, calibration, fit)
             warnings += _add_uncertainty(record, spec, solution, args.fov_tolerance)
-            warnings += _assumption_warnings(record)
+            warnings += _assumption_warnings(solution)
             record['warning'] = warnings
             if args.yaml_dir is not None:
                 file_name = _yaml_file_name(name) or f'camera_{number}.yaml'
@@ -542,7 +542,7 @@ def _rectify_camera(args, width, height):
         raise CliError(f'the image is {width}x{height} but the spec is {spec.width}x{spec.height}: '
                        'aspect ratios differ')
     solution = solve_zero_shot(spec, args.model or 'auto', fov_tolerance=args.fov_tolerance)
-    _print_warnings(solution.warnings + ([solution.assumption] if solution.assumption else []))
+    _print_warnings(solution.warnings + _assumption_warnings(solution))
     camera = solution.camera if (spec.width, spec.height) == (width, height) \
         else solution.camera.scaled(width, height)
     return camera, new_camera_matrix(camera, balance, fov_scale), None
