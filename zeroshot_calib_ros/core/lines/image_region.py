@@ -23,8 +23,8 @@ the lens puts the spec's circle FOV.
    floor ``CIRCLE_FLOOR_PX``) gives ``centre_sigma_px`` and ``radius_sigma_px``.
 4. **A circle or not**: the fitted edge points must lie on the circle (robust scatter at most
    ``MAX_SCATTER_PX``), cover opposite sides of it (an arc seen on one side only is a dark floor,
-   a shadow, the night sky), with a clear step from inside to outside, and the image outside the
-   circle must be nearly all dark surround. Its radius lies between a quarter of the shorter side
+   a shadow, the night sky), with a clear step from inside to outside; the image outside the
+   circle must be nearly all dark surround, and inside little of it. Its radius lies between a quarter of the shorter side
    and the half diagonal, its centre in the middle 40 % of each side. Ordinary (rectilinear,
    full-frame fisheye, dark or night) images fail these.
 
@@ -66,6 +66,9 @@ MIN_STEP = 8.0
 """Least median step (grey levels) from just inside to just outside the circle."""
 MIN_OUTSIDE_DARK = 0.8
 """Least fraction of the image outside the circle that is dark surround."""
+MAX_INSIDE_DARK = 0.2
+"""Largest fraction of the disc that is dark surround (a dark scene's bright round object, dark
+all around and inside, is not an image circle)."""
 CIRCLE_FLOOR_PX = 0.25
 """Added in quadrature to the measured sigmas (px): what a sub-pixel edge fit of a real, slightly
 imperfect circle does not beat."""
@@ -256,7 +259,7 @@ def _boundary_points(smooth: np.ndarray, circle, half_width: float, step: float 
     phi = np.arange(count) * (2 * math.pi / count)
     u = np.stack([np.cos(phi), np.sin(phi)], axis=1)
     edge = np.stack([cx + r * u[:, 0], cy + r * u[:, 1]], axis=1)
-    m = half_width + 3
+    m = 3.0  # profiles may run out of the image (NaN there): corner arcs of a large circle count
     seen = (edge[:, 0] >= m) & (edge[:, 0] <= w - 1 - m) & (edge[:, 1] >= m) & (edge[:, 1] <= h - 1 - m)
     phi, u = phi[seen], u[seen]
     if len(phi) == 0:
@@ -296,8 +299,8 @@ def _geometric_fit(points: np.ndarray, start, iterations: int = 12):
         rho = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
         res = rho - r
         mad = float(np.median(np.abs(res - np.median(res))))
-        sigma = max(1.4826 * mad, 0.05)
-        t = res / (4.685 * sigma)
+        sigma = max(1.4826 * mad, 0.3)  # a floor: quantised edges can make the MAD vanish
+        t = (res - np.median(res)) / (4.685 * sigma)  # about the median: r is still to move
         wts = np.where(np.abs(t) < 1, (1 - t * t) ** 2, 0.0)
         J = np.column_stack([-d[:, 0] / rho, -d[:, 1] / rho, -np.ones(len(points))])
         JTJ = J.T @ (J * wts[:, None])
@@ -404,7 +407,7 @@ def _fine_circle(grey, smooth, circle, level, dark_small, s) -> tuple:
         # only profiles that step from the scene down into the surround locate the boundary (not
         # where the scene is as dark as the surround, or a body part covers the boundary)
         u = np.stack([np.cos(phi), np.sin(phi)], axis=1)
-        step = _step(smooth, pts, u, 5.0)
+        step = _step(smooth, pts, u, max(5.0, 0.025 * circle[2]))  # soft edges step over a few % of r
         pts, phi = pts[step >= min_step], phi[step >= min_step]
         if len(pts) < 30:
             return None, 'few boundary points'
@@ -439,6 +442,9 @@ def _fine_circle(grey, smooth, circle, level, dark_small, s) -> tuple:
     beyond = _disc((sh, sw), cx * s, cy * s, r * s + max(2.0, 6 * s), outside=True)
     if beyond.sum() > 0.002 * sh * sw and dark_small[beyond].mean() < MIN_OUTSIDE_DARK:
         return None, f'outside dark {dark_small[beyond].mean():.2f}'
+    within = _disc((sh, sw), cx * s, cy * s, max(1.0, r * s - max(2.0, (fall_px + 4) * s)))
+    if within.any() and dark_small[within].mean() > MAX_INSIDE_DARK:
+        return None, f'inside dark {dark_small[within].mean():.2f}'
     # covariance: residual scatter, points within CORRELATION_PX along the arc counted as one
     spacing = 2 * math.pi * r / max(1, int(min(1440, max(90, 2 * math.pi * r / 2.0))))
     inflate = max(1.0, CORRELATION_PX / spacing)
