@@ -407,7 +407,7 @@ def _fine_circle(grey, smooth, circle, level, dark_small, s) -> tuple:
         # only profiles that step from the scene down into the surround locate the boundary (not
         # where the scene is as dark as the surround, or a body part covers the boundary)
         u = np.stack([np.cos(phi), np.sin(phi)], axis=1)
-        step = _step(smooth, pts, u, max(5.0, 0.025 * circle[2]))  # soft edges step over a few % of r
+        step, _ = _step(smooth, pts, u, max(5.0, 0.025 * circle[2]))  # soft edges: a few % of r
         pts, phi = pts[step >= min_step], phi[step >= min_step]
         if len(pts) < 30:
             return None, 'few boundary points'
@@ -460,13 +460,13 @@ def _fine_circle(grey, smooth, circle, level, dark_small, s) -> tuple:
 
 
 def _step(smooth, pts, u, d):
-    """Brightness ``d`` px inside each boundary point (direction ``u`` outward) less ``d`` px
-    outside."""
+    """(brightness ``d`` px inside each boundary point (direction ``u`` outward) less ``d`` px
+    outside, the brightness outside)."""
     a = pts - d * u
     b = pts + d * u
     inside = _sample(smooth, a[:, 0].astype(np.float32), a[:, 1].astype(np.float32))
     outside = _sample(smooth, b[:, 0].astype(np.float32), b[:, 1].astype(np.float32))
-    return np.nan_to_num(inside - outside, nan=-np.inf)
+    return np.nan_to_num(inside - outside, nan=-np.inf), np.nan_to_num(outside, nan=np.inf)
 
 
 def _fall_width(smooth, cx, cy, r, u, reach: float = 24.0) -> float:
