@@ -19,6 +19,12 @@ Evidence, ``--views`` views of one scene per profile:
   ``--image-width`` px wide (the renderer's cost is per pixel); errors are reported at 1920 px
   as everywhere.
 
+  ``--nuisances circle`` / ``all`` adds what real fisheye photos have (``test/scenes.py``'s
+  ``Nuisances``): an image circle of radius 0.47 of the shorter side about the principal point,
+  vignetted, with a dark but not black, noisy surround (and with ``all`` a vehicle body part at
+  the bottom, blur, noise and JPEG); the spec is the profile's FOVs and the truth's FOV across
+  that circle (what a circular fisheye's spec sheet states), and errors are over the circle.
+
 - ``--evidence real``: the shared real images ``../shared/data/ros_fisheye_800x503`` (24 images
   800x503 of a wide lens with a checkerboard in each; its edges count as lines like any other,
   its geometry is not used), refined from ``--real-images`` of them (default 4 and all 24,
@@ -244,12 +250,34 @@ def _scaled_profile(p, fovs, width):
     return lp.GroundTruthCamera(p.fx * s, p.fy * h / p.height, p.cx * s, p.cy * h / p.height, width, h, p.D)
 
 
+NUISANCE_CIRCLE = 0.47
+"""--nuisances: the image circle's radius, as a fraction of the shorter side."""
+
+
+def _nuisances(scenes, kind: str, gt):
+    """test/scenes.py's Nuisances for ``--nuisances``: none; 'circle', a vignetted image circle
+    (radius NUISANCE_CIRCLE of the shorter side, about the principal point) with a dark, noisy,
+    glowing surround; 'all', that and a vehicle body part at the bottom, blur, noise and JPEG."""
+    if kind == 'none':
+        return None
+    radius = NUISANCE_CIRCLE * min(gt.width, gt.height)
+    if kind == 'circle':
+        return scenes.Nuisances(circle_radius=radius)
+    return scenes.Nuisances(circle_radius=radius, vehicle=True, blur=0.6, noise=2.0, jpeg_quality=80)
+
+
 def evaluate(p, fovs, args, seed) -> Row:
     rng = np.random.default_rng(seed)
     gt = _scaled_profile(p, fovs, args.image_width if args.evidence == 'images' else None)
     given = {k: (round(v / args.fov_round) * args.fov_round if args.fov_round else v) for k, v in fovs.items()}
     row = Row(p.index, p.path, gt.width, gt.height)
     try:
+        if args.evidence == 'images' and args.nuisances != 'none':
+            # a circular fisheye's spec sheet states the FOV across its image circle: the truth's
+            radius = NUISANCE_CIRCLE * min(gt.width, gt.height)
+            ray = gt.unproject(np.array([[gt.cx + radius, gt.cy]]))[0]
+            circle_fov = 2 * math.degrees(math.atan2(math.hypot(ray[0], ray[1]), ray[2]))
+            given = dict(given, circle_diameter=2 * radius, circle_fov=circle_fov)
         spec = CameraSpec(gt.width, gt.height, **given)
     except SpecError as exc:
         row.failure = f'spec refused: {exc}'
@@ -265,13 +293,15 @@ def evaluate(p, fovs, args, seed) -> Row:
             scene = scenes.make_scene(args.scene, seed % 1000)
             images = []
             for v in range(args.views):
-                cache = (Path(args.render_cache) / f'{args.scene}_{p.index}_{gt.width}_{seed}_{v}.png'
+                tag = '' if args.nuisances == 'none' else f'_{args.nuisances}'
+                cache = (Path(args.render_cache) / f'{args.scene}_{p.index}_{gt.width}_{seed}_{v}{tag}.png'
                          if args.render_cache else None)
                 if cache is not None and cache.exists():
                     images.append(cv2.imread(str(cache), cv2.IMREAD_UNCHANGED))
                     continue
                 pose = scenes.random_pose(scene, seed % 1000 * 10 + v)
-                image, _ = scenes.render(gt, scene, pose=pose, seed=seed % 1000 * 10 + v)
+                image, _ = scenes.render(gt, scene, pose=pose, seed=seed % 1000 * 10 + v,
+                                         nuisances=_nuisances(scenes, args.nuisances, gt))
                 if cache is not None:
                     cache.parent.mkdir(parents=True, exist_ok=True)
                     cv2.imwrite(str(cache), image)
@@ -289,6 +319,11 @@ def evaluate(p, fovs, args, seed) -> Row:
             pickle.dump({'gt': gt, 'spec': spec, 'result': result,
                          'curves': curves if args.evidence == 'ideal' else None}, f)
     pixels = lp.pixel_grid(gt.width, gt.height)
+    if args.evidence == 'images' and args.nuisances != 'none':
+        # nothing outside the image circle is imaged: errors over the circle (a finer grid)
+        pixels = lp.pixel_grid(gt.width, gt.height, (65, 37))
+        radius = NUISANCE_CIRCLE * min(gt.width, gt.height)
+        pixels = pixels[np.hypot(pixels[:, 0] - gt.cx, pixels[:, 1] - gt.cy) <= radius]
     rays = gt.unproject(pixels)
     scale = lp.REFERENCE_WIDTH / gt.width
     row.zs_px = lp.best_rotation_rms(result.zero_shot_camera, rays, pixels)[0] * scale
@@ -346,9 +381,16 @@ def report(rows: List[Row], args, seconds: float, command: str, table: bool = Tr
         f'{fov}; FOV tolerance {args.fov_tolerance:g} degree(s); {args.views} views each; '
         + (f'noise {args.noise:g} px, {args.outliers} curved outlier arcs per view.' if args.evidence == 'ideal'
            else f'scene `{args.scene}` rendered by test/scenes.py at {args.image_width} px wide, curves from '
-                'core/lines/detect.py (refine_from_images).'),
+                'core/lines/detect.py (refine_from_images)'
+                + ('.' if getattr(args, 'nuisances', 'none') == 'none' else
+                   f'; nuisances `{args.nuisances}`: an image circle of radius {NUISANCE_CIRCLE:g} of the shorter '
+                   'side, vignetted, with a dark noisy surround' + (', a vehicle body part, blur, noise, JPEG 80'
+                                                                    if args.nuisances == 'all' else '') + '.')),
         '',
-        'Errors: RMS over a 33 x 19 grid after the best rotation, px at 1920 wide (the lens benchmark\'s metric). '
+        ('Errors: RMS over a 33 x 19 grid after the best rotation, px at 1920 wide (the lens benchmark\'s metric). '
+         if getattr(args, 'nuisances', 'none') == 'none' else
+         'Errors: RMS over the points of a 65 x 37 grid inside the image circle (nothing outside it is imaged) '
+         'after the best rotation, px at 1920 wide. ') +
         '"returned": the camera refine_camera returns (refined when the gate accepts, zero-shot otherwise); '
         '"fitted": the refined fit whether accepted or not.',
         '',
@@ -498,6 +540,10 @@ def main(argv=None) -> int:
     parser.add_argument('--fov-tolerance', type=float, default=1.0)
     parser.add_argument('--scene', default='room', help='images evidence: room, corridor or street')
     parser.add_argument('--image-width', type=int, default=960, help='images evidence: width the profile is scaled to')
+    parser.add_argument('--nuisances', choices=('none', 'circle', 'all'), default='none',
+                        help='images evidence: what real photos add (test/scenes.py Nuisances): a vignetted image '
+                        'circle with a dark, noisy surround (circle), and also a vehicle body part, blur, noise and '
+                        'JPEG (all); default none')
     parser.add_argument('--render-cache', help='images evidence: directory where rendered views are kept (PNG, '
                         'lossless) and read back on later runs; rendering is the same with or without it')
     parser.add_argument('--tuning-set', action='store_true',

@@ -949,8 +949,11 @@ def _ray_field(camera):
 
 
 def render_scene(camera, scene='room', pose=None, seed=0, colour=False, supersample=4,
-                 noise=1.5, blur=0.5, exposure=255.0, min_segment_px=8.0) -> Rendering:
+                 noise=1.5, blur=0.5, exposure=255.0, min_segment_px=8.0,
+                 nuisances: Optional['Nuisances'] = None) -> Rendering:
     """Render ``scene`` (a name or a ``Scene``) through ``camera`` (module docstring).
+    ``nuisances``: what real fisheye photos add (``Nuisances``; default none: the image is
+    exactly what it was without the option).
 
     One ray per pixel centre, painted edges box-filtered over the pixel footprint; then every
     pixel next to an edge between surfaces (or a see-through item, or the end of the lens' rays)
@@ -1022,14 +1025,91 @@ def render_scene(camera, scene='room', pose=None, seed=0, colour=False, supersam
     if noise > 0:
         out = out + rng.normal(0.0, noise, out.shape).astype(_F)
     vmask = valid > 0.5
-    out = np.where(vmask[..., None] if colour else vmask, out, 0.0)
-    image = np.clip(np.round(out), 0, 255).astype(np.uint8)
+    if nuisances is None:
+        out = np.where(vmask[..., None] if colour else vmask, out, 0.0)
+        image = np.clip(np.round(out), 0, 255).astype(np.uint8)
+    else:
+        image = apply_nuisances(out, camera, nuisances, seed)
     segs = _visible_segments(sc, camera, rays, R, C, min_segment_px)
     segments = np.array([[p, q] for p, q, _ in segs], dtype=float).reshape(-1, 2, 3)
     kinds = [k for _, _, k in segs]
     contrast = segment_contrast(clean, camera, segments)
     return Rendering(image, segments, kinds, contrast, clean.astype(_F), curved > 0.05, vmask,
                      pose_d, R, C)
+
+
+@dataclass
+class Nuisances:
+    """What real fisheye photos add to a rendering (``render_scene(..., nuisances=...)``).
+
+    ``circle``: an image circle of ``circle_radius`` px (default the camera's ``circle_radius``)
+    about the principal point: inside, a vignetting fall-off to ``vignetting`` of the brightness
+    at the rim (``(rho / R)^3``); the boundary blurred by ``edge_px``; outside, not black: a
+    ``surround`` grey level, a ``glow`` that fades over ``glow_px`` from the rim, and noise of
+    ``surround_noise``. ``vehicle``: a body part in view at the bottom edge (a dark curved shape
+    with a bright rim, like a car's bonnet). Then an extra ``blur`` and sensor ``noise`` (sigma),
+    and JPEG re-encoding at ``jpeg_quality`` (None: none)."""
+    circle: bool = True
+    circle_radius: Optional[float] = None
+    vignetting: float = 0.45
+    edge_px: float = 1.2
+    surround: float = 14.0
+    surround_noise: float = 3.0
+    glow: float = 16.0
+    glow_px: float = 10.0
+    vehicle: bool = False
+    blur: float = 0.0
+    noise: float = 0.0
+    jpeg_quality: Optional[int] = None
+
+
+ALL_NUISANCES = Nuisances(circle=True, vehicle=True, blur=0.6, noise=2.0, jpeg_quality=80)
+
+
+def apply_nuisances(out, camera, nuisances: Nuisances, seed=0) -> np.ndarray:
+    """The float rendering ``out`` (grey (H, W) or BGR (H, W, 3), 0..255) with ``nuisances``
+    (``Nuisances``), as uint8."""
+    rng = np.random.default_rng(seed + 104729)
+    img = np.asarray(out, dtype=_F).copy()
+    h, w = img.shape[:2]
+    colour = img.ndim == 3
+    yy, xx = np.mgrid[0:h, 0:w].astype(_F)
+    if nuisances.vehicle:
+        ex, ey, a, b = 0.5 * w, 1.22 * h, 0.42 * w, 0.36 * h
+        f = ((xx - ex) / a) ** 2 + ((yy - ey) / b) ** 2
+        grad = np.sqrt((2 * (xx - ex) / a ** 2) ** 2 + (2 * (yy - ey) / b ** 2) ** 2) + 1e-6
+        sd = (f - 1.0) / grad                       # signed distance (px), negative inside
+        cover = np.clip(0.5 - sd, 0.0, 1.0)
+        body = 30.0 + 150.0 * np.exp(-np.square((sd + 3.0) / 2.5)) + 10.0 * (yy / h)
+        if colour:
+            cover, body = cover[..., None], body[..., None]
+        img = img * (1 - cover) + body * cover
+    if nuisances.circle:
+        R = nuisances.circle_radius if nuisances.circle_radius is not None else getattr(camera, 'circle_radius', None)
+        if R is None:
+            raise ValueError('the circle nuisance needs circle_radius (or a camera with one)')
+        rho = np.hypot(xx - camera.cx, yy - camera.cy)
+        cover = np.clip(0.5 - (rho - R), 0.0, 1.0).astype(_F)
+        vig = 1.0 - (1.0 - nuisances.vignetting) * np.clip(rho / R, 0, 1) ** 3
+        outside = (nuisances.surround + nuisances.glow * np.exp(-np.maximum(rho - R, 0) / nuisances.glow_px)
+                   + rng.normal(0.0, nuisances.surround_noise, (h, w))).astype(_F)
+        band = np.clip(1.0 - np.abs(rho - R) / (3.0 * nuisances.edge_px + 1.0), 0.0, 1.0)
+        if colour:
+            cover, vig, outside, band = cover[..., None], vig[..., None], outside[..., None], band[..., None]
+        # the camera's own circle already darkens the scene outside R (anti-aliased): no second edge
+        own = getattr(camera, 'circle_radius', None) is not None and abs(camera.circle_radius - R) < 0.5
+        img = img * vig * (1.0 if own else cover) + outside * (1 - cover)
+        if nuisances.edge_px > 0:  # the lens's soft boundary: blurred across it
+            img = img * (1 - band) + cv2.GaussianBlur(img, (0, 0), nuisances.edge_px) * band
+    if nuisances.blur > 0:
+        img = cv2.GaussianBlur(img, (0, 0), nuisances.blur)
+    if nuisances.noise > 0:
+        img = img + rng.normal(0.0, nuisances.noise, img.shape).astype(_F)
+    image = np.clip(np.round(img), 0, 255).astype(np.uint8)
+    if nuisances.jpeg_quality is not None:
+        ok, buf = cv2.imencode('.jpg', image, [int(cv2.IMWRITE_JPEG_QUALITY), int(nuisances.jpeg_quality)])
+        image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED if colour else cv2.IMREAD_GRAYSCALE)
+    return image
 
 
 def render(camera, scene='room', pose=None, seed=0, **kwargs):

@@ -504,7 +504,7 @@ def test_refine_from_images_detects_again_with_the_refined_camera(monkeypatch):
         detected_with.append(camera)
         return []
 
-    def fit(spec, curves, width, height, tolerance, initial=None, solution=None):
+    def fit(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None):
         started_from.append(initial)
         return refine_module.Refinement(TRUTH, True, 'accepted', 1.0, 3.0, 0, 0, None, None, 0.0, 0.0,
                                         zero_shot_camera=zs)

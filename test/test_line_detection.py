@@ -337,6 +337,30 @@ def test_inputs():
         detect_curves(r.image, KannalaBrandtCamera(250.0, 250.0, 320.0, 180.0, 640, 360, [0, 0, 0, 0]), views=views)
 
 
+def circular_190(width=640, height=480, radius=220.0, cx=326.0, cy=236.0):
+    """A 190-degree circular fisheye: its ray at 95 degrees lands on the image circle."""
+    probe = WideFovCamera(100.0, cx, cy, width, height, omega=1 / 100.0)
+    edge = probe.project(np.array([[np.sin(np.radians(95)), 0.0, np.cos(np.radians(95))]]))[0]
+    f = 100.0 * radius / (edge[0] - cx)
+    return WideFovCamera(f, cx, cy, width, height, omega=1 / f, circle_radius=radius)
+
+
+def test_the_boundary_of_a_vignetted_image_circle_is_never_a_curve():
+    """A circular fisheye's surround is dark but not black (vignetting fall-off, a glow, noise):
+    its boundary, a long gently curved edge, must not come out as a straight line (it used to,
+    with only pure-black surrounds left out). Lines inside the circle are still found."""
+    truth = circular_190()
+    image, _ = scenes.render(truth, 'room', seed=1, pose='random', nuisances=scenes.Nuisances())
+    from zeroshot_calib_ros.core.estimation.refine import zero_shot_camera
+    camera = zero_shot_camera(CameraSpec(640, 480, circle_diameter=440.0, circle_fov=190.0), 640, 480)
+    curves = detect_curves(image, camera)
+    assert len(curves) >= 20
+    on_boundary = [c for c in curves
+                   if np.mean(np.abs(np.hypot(c.points[:, 0] - truth.cx, c.points[:, 1] - truth.cy)
+                                     - truth.circle_radius) < 4.0) > 0.2]
+    assert on_boundary == [], [(len(c.points), round(c.length_px)) for c in on_boundary]
+
+
 def test_debug_image_draws_used_and_rejected_curves(room, room_curves):
     used, rejected = room_curves[:20], room_curves[20:40]
     out = draw_curves(room.image, used, rejected)

@@ -140,3 +140,53 @@ def test_images_of_two_cameras_are_not_adopted(views, capsys, tmp_path):
     assert refinement['reason'].startswith('disagreement between images'), refinement['reason']
     zero_shot = solve_zero_shot(CameraSpec(640, 360, hfov=172, vfov=97, dfov=198))
     assert record['f'] == pytest.approx(zero_shot.f) and record['cx'] == 320 and record['cy'] == 180
+
+
+def circular_190(width=640, height=480, radius=220.0, cx=326.0, cy=236.0):
+    """A 190-degree circular fisheye: its ray at 95 degrees lands on the image circle."""
+    from zeroshot_calib_ros.core.lens.wide_fov import WideFovCamera
+    probe = WideFovCamera(100.0, cx, cy, width, height, omega=1 / 100.0)
+    edge = probe.project(np.array([[np.sin(np.radians(95)), 0.0, np.cos(np.radians(95))]]))[0]
+    f = 100.0 * radius / (edge[0] - cx)
+    return WideFovCamera(f, cx, cy, width, height, omega=1 / f, circle_radius=radius)
+
+
+@pytest.fixture(scope='module')
+def circular_view(tmp_path_factory):
+    """A 190-degree circular fisheye's photo: vignetted circle, noisy glowing surround, a vehicle
+    body part at the bottom, blur, noise, JPEG."""
+    from scenes import ALL_NUISANCES
+    image, _ = render(circular_190(), 'corridor', pose='random', seed=1, nuisances=ALL_NUISANCES)
+    path = tmp_path_factory.mktemp('circular') / 'circular.png'
+    cv2.imwrite(str(path), image)
+    return str(path)
+
+
+def test_circle_fov_alone_measures_the_circle_diameter_in_the_images(circular_view, capsys):
+    truth = circular_190()
+    status, out, err = run(capsys, circular_view, '--circle-fov', '190', '--json')
+    assert status == 0, err
+    record = json.loads(out)
+    circle = record['image_circle']
+    assert abs(circle['diameter'] - 2 * truth.circle_radius) < 2.0
+    assert abs(circle['cx'] - truth.cx) < 1.5 and abs(circle['cy'] - truth.cy) < 1.5
+    assert circle['measured_from'] == 1 and circle['diameter_used'] == 'measured'
+    assert 0 < circle['diameter_sigma_px'] < 2
+    assert record['refinement']['reason']
+
+
+def test_a_given_circle_diameter_that_disagrees_with_the_images_is_warned_about(circular_view, capsys):
+    status, out, err = run(capsys, circular_view, '--circle-fov', '190', '--circle-diameter', '400')
+    assert status == 0, err
+    circle_line = [line for line in out.splitlines() if line.startswith('circle ')]
+    assert len(circle_line) == 1 and 'diameter 44' in circle_line[0], out
+    warnings = [line for line in err.splitlines() if '--circle-diameter 400' in line]
+    assert len(warnings) == 1 and warnings[0].startswith('zeroshot-calib: warning: ') and 'differs' in warnings[0]
+
+
+def test_circle_fov_without_a_circle_in_the_images_is_one_error_line(views, capsys):
+    status, out, err = run(capsys, views[0], '--circle-fov', '190')
+    assert status == 2 and out == ''
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith('zeroshot-calib: error: ') and '--circle-diameter' in lines[0]
+    assert 'circle' in lines[0] and 'found' in lines[0]

@@ -639,13 +639,29 @@ def _debug_image(images, result, solution, args):
     return np.vstack([top.astype(np.uint8), bottom[:, :width].astype(np.uint8)])
 
 
+def _preset_circle_diameter(args):
+    """The circle diameter of --preset, if it has one."""
+    return spec_with_preset(args.preset).circle_diameter if args.preset else None
+
+
+def _image_circle_line(circle) -> str:
+    """The text output's line on the image circle measured in the images."""
+    if circle is None:
+        return 'circle    none seen in the images'
+    used = {'measured': ' (used as the spec\'s circle diameter)', 'given': ''}.get(circle['diameter_used'], '')
+    return (f"circle    diameter {circle['diameter']:.1f} px +- {circle['diameter_sigma_px']:.2g}{used}, centre "
+            f"({circle['cx']:.1f}, {circle['cy']:.1f}) +- {circle['centre_sigma_px']:.2g} px, measured in "
+            f"{circle['measured_from']} of {circle['images']} image{'s' if circle['images'] > 1 else ''}")
+
+
 MIN_REFINE_IMAGE_SIDE = 32
 """Smaller images hold no line long enough to measure a lens by (and their camera would be refused
 as implausible, without naming the image)."""
 
 
 def _cmd_refine(args):
-    from .core.estimation.refine import refine_from_images  # scipy.optimize: only when asked
+    from .core.estimation.refine import circle_diameter_agrees, refine_from_images  # scipy: only when asked
+    from .core.lines.image_region import combine_circles, find_image_region
     if args.debug_image:
         _check_output_image(args.debug_image)
     images, seen = [], {}
@@ -672,12 +688,36 @@ def _cmd_refine(args):
     images = [im if im.dtype == np.uint8 else cv2.convertScaleAbs(im, alpha=255.0 / max(1.0, float(im.max())))
               for im in images]
     (width, height), = sizes
+    # the part of each image that shows the scene, and the image circle if one is seen
+    regions = [find_image_region(im) for im in images]
+    circle = combine_circles([r.circle for r in regions])
+    measured_in = sum(r.circle is not None for r in regions)
+    circle_warnings = []
+    given_diameter = args.circle_diameter
+    measure_diameter = args.circle_fov is not None and given_diameter is None and _preset_circle_diameter(args) is None
+    if measure_diameter:
+        if circle is None:
+            raise CliError(f'--circle-fov {args.circle_fov:g} needs the image circle\'s diameter, and none was found in '
+                           f'the image{"s" if len(images) > 1 else ""} (looked for a dark surround with a circular '
+                           'boundary seen on opposite sides): give --circle-diameter PX')
+        args.circle_diameter = round(circle.diameter, 2)
     spec = _refine_spec(args, width, height)
+    if circle is not None and spec.circle_diameter is not None and given_diameter is not None \
+            and not circle_diameter_agrees(spec.circle_diameter, circle):
+        circle_warnings.append(
+            f'--circle-diameter {spec.circle_diameter:g} px differs from the image circle measured in the images: '
+            f'{circle.diameter:.1f} +- {2 * circle.radius_sigma_px:.1f} px ({measured_in} of {len(images)} images); '
+            'the given diameter is used, the measured centre only as the principal point')
     solution = solve_zero_shot(spec, 'auto', fov_tolerance=args.fov_tolerance)
     # the images are detected in parallel threads (the same curves, in the same order)
-    result = refine_from_images(spec, images, args.fov_tolerance, workers=os.cpu_count() or 1)
+    result = refine_from_images(spec, images, args.fov_tolerance, workers=os.cpu_count() or 1, regions=regions)
     summary, calibration = _refined_summary(result, spec, solution, args)
-    warnings = list(solution.warnings)  # the spec's FOVs against the zero-shot camera
+    summary['image_circle'] = None if circle is None else {
+        'cx': circle.cx, 'cy': circle.cy, 'diameter': circle.diameter,
+        'centre_sigma_px': circle.centre_sigma_px, 'diameter_sigma_px': 2 * circle.radius_sigma_px,
+        'measured_from': measured_in, 'images': len(images),
+        'diameter_used': 'measured' if measure_diameter else ('given' if spec.circle_diameter is not None else None)}
+    warnings = list(solution.warnings) + circle_warnings  # the spec's FOVs against the zero-shot camera
     warnings += [] if result.accepted else _fit_warnings(solution, calibration, DISTORTION_FITS['equidistant'](solution.camera))
     summary['uncertainty_px'] = result.uncertainty_px if result.accepted else result.zero_shot_uncertainty_px
     summary['refinement'] = json_safe({k: getattr(result, k) for k in REFINE_KEYS})
@@ -695,6 +735,7 @@ def _cmd_refine(args):
         print(json.dumps(summary))
     else:
         print(summary_text(summary) + '\n' + _uncertainty_line(summary, args.fov_tolerance))
+        print(_image_circle_line(summary['image_circle']))
         print(f"refined   {'yes' if result.accepted else 'no'}: {result.reason}")
         if args.yaml:
             print(f'wrote {args.yaml}')
@@ -1038,9 +1079,10 @@ def _add_fov_tolerance_argument(parser):
                              'the lines may move the FOVs')
 
 
-def _add_circle_arguments(parser):
+def _add_circle_arguments(parser, refine=False):
     parser.add_argument('--circle-diameter', type=_number, metavar='PX',
-                        help='circular fisheye: image-circle diameter (px), with --circle-fov')
+                        help='circular fisheye: image-circle diameter (px), with --circle-fov'
+                        + ('; refine measures it in the images when it is left out' if refine else ''))
     parser.add_argument('--circle-fov', type=_number, metavar='DEG',
                         help='circular fisheye: field of view across the image circle (deg)')
 
@@ -1104,7 +1146,7 @@ def build_parser() -> argparse.ArgumentParser:
     refine.add_argument('--vfov', type=_number, help='vertical field of view (deg)')
     refine.add_argument('--dfov', type=_number, help='diagonal field of view (deg)')
     refine.add_argument('--preset', metavar='NAME', help='the FOVs of a published spec (`zeroshot-calib presets`)')
-    _add_circle_arguments(refine)
+    _add_circle_arguments(refine, refine=True)
     _add_fov_tolerance_argument(refine)
     refine.add_argument('--balance', type=_number, default=0.0,
                         help='rectified camera: 0 crops to valid pixels, 1 keeps every edge (default 0)')

@@ -7,7 +7,8 @@ prior and the shape prior. The refined camera replaces the zero-shot one only wh
 
 - there are at least ``MIN_LINES`` curves that are straight under one camera, spread over the
   image: at least ``MIN_COVERAGE`` of the cells of an 8 x 6 grid over the image, and reaching
-  ``MIN_REACH`` of the way from the centre to the corners (distortion lives at the periphery);
+  ``MIN_REACH`` of the way from the centre to the corners, or to the image circle when it is
+  nearer (distortion lives at the periphery);
 - the images agree: no image with at least 3 curves loses more than half of them as outliers
   while the others keep theirs; and when one of the two checks below fails (the FOVs, the
   held-out curves), each image is fitted alone: if the images' own cameras differ by more than
@@ -58,7 +59,7 @@ from ..zeroshot.solver import solve_zero_shot
 from ..zeroshot.spec import CameraSpec
 from .fit import SOLVE_TOL, LineFit, fit_lines
 from .problem import Problem
-from .terms import FOV_TOLERANCE_DEG, SHAPE_SIGMA, FovTerm, PrincipalPointPrior, ShapePrior
+from .terms import FOV_TOLERANCE_DEG, SHAPE_SIGMA, FovTerm, ImageCircleTerm, PrincipalPointPrior, ShapePrior
 from .uncertainty import (Uncertainty, displacement, image_circle_radius, pixel_grid, probability_other_is_better,
                           problem_uncertainty, zero_shot_uncertainty)
 
@@ -159,6 +160,11 @@ class Refinement:
     reach: float = 0.0
     """Largest distance of a used point from the centre over the centre-to-corner distance."""
     fov_residuals_deg: Dict[str, float] = field(default_factory=dict)
+    image_circle: Optional[object] = None
+    """The image circle measured in the images (``core.lines.image_region.ImageCircle``), combined
+    over them, when one was seen; None otherwise."""
+    circle_measured_in: int = 0
+    """How many of the images showed it."""
     used: Optional[np.ndarray] = field(default=None, repr=False)
     """Boolean mask over the given curves: those the fit used."""
     curves: List = field(default_factory=list, repr=False)
@@ -196,15 +202,20 @@ def _prepare(curves: Sequence, width: int, height: int):
     return kept, np.array(index, dtype=int), images
 
 
-def coverage_of(points: np.ndarray, width: int, height: int, grid=COVERAGE_GRID):
-    """(fraction of grid cells touched, reach: largest distance from the centre / corner distance)."""
+def coverage_of(points: np.ndarray, width: int, height: int, grid=COVERAGE_GRID, circle_radius=None):
+    """(fraction of grid cells touched, reach: largest distance from the centre / corner distance,
+    or / the image circle's radius when ``circle_radius`` (px) is given and smaller: nothing
+    beyond the circle is imaged)."""
     if len(points) == 0:
         return 0.0, 0.0
     gx = np.clip((points[:, 0] / width * grid[0]).astype(int), 0, grid[0] - 1)
     gy = np.clip((points[:, 1] / height * grid[1]).astype(int), 0, grid[1] - 1)
     cells = len(set(zip(gx.tolist(), gy.tolist())))
     radius = np.hypot(points[:, 0] - width / 2, points[:, 1] - height / 2)
-    reach = float(np.max(radius) / math.hypot(width / 2, height / 2))
+    limit = math.hypot(width / 2, height / 2)
+    if circle_radius is not None and 0 < circle_radius < limit:
+        limit = circle_radius
+    reach = float(np.max(radius) / limit)
     return cells / (grid[0] * grid[1]), reach
 
 
@@ -214,16 +225,41 @@ def _hold_out_split(n: int, every: int = HOLD_OUT_EVERY):
     return held
 
 
+CIRCLE_AGREEMENT_SIGMAS = 3.0
+"""A spec's circle diameter agrees with the measured one when they differ by at most this many
+sigmas of the measured diameter (and at least 1 px); only then does the measurement state the
+circle FOV (else the spec's diameter does, and the measurement only the principal point)."""
+
+
+def circle_diameter_agrees(given: float, circle) -> bool:
+    """Whether a given circle diameter (px) agrees with a measured ``ImageCircle``."""
+    return abs(given - circle.diameter) <= max(1.0, CIRCLE_AGREEMENT_SIGMAS * 2.0 * circle.radius_sigma_px)
+
+
+def circle_term(spec: CameraSpec, circle, width: int, fov_tolerance_deg: float, reference) -> ImageCircleTerm:
+    """The ``ImageCircleTerm`` of a measured circle: the principal point always; the circle FOV
+    when the spec has one and its diameter (scaled to ``width``) agrees with the measurement."""
+    circle_fov = getattr(spec, 'circle_fov', None)
+    if circle_fov is not None:
+        given = spec.circle_diameter * width / spec.width
+        if not circle_diameter_agrees(given, circle):
+            circle_fov = None
+    return ImageCircleTerm(circle.cx, circle.cy, circle.radius, circle.centre_sigma_px, circle.radius_sigma_px,
+                           width, circle_fov, fov_tolerance_deg, reference)
+
+
 def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = None, height: Optional[int] = None,
                   fov_tolerance_deg: float = FOV_TOLERANCE_DEG, initial: Optional[KannalaBrandtCamera] = None,
-                  solution=None) -> Refinement:
+                  solution=None, image_circle=None) -> Refinement:
     """Refine the zero-shot camera of ``spec`` with ``curves`` (module docstring).
 
     ``curves``: ``core.lines.detect.Curve`` objects (or (N, 2) arrays of raw pixels, counted as
     one image), from images of ``width`` x ``height`` (default the spec's;
     another size of the same aspect is a binned or resized mode). ``initial``: a camera to start
     from (e.g. an earlier refinement); the zero-shot camera stays the reference of the gate.
-    ``solution``: the zero-shot solution if already computed."""
+    ``solution``: the zero-shot solution if already computed. ``image_circle``: the image circle
+    measured in the images (``core.lines.image_region.ImageCircle``), evidence of the principal
+    point and, with the spec's circle FOV, of the scale (``circle_term``)."""
     width = spec.width if width is None else int(width)
     height = spec.height if height is None else int(height)
     if abs(width * spec.height - height * spec.width) > 0.01 * spec.width * spec.height:
@@ -240,6 +276,7 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
                         curves_given=len(curves), warnings=warnings, zero_shot_uncertainty=zs_u)
     result.used = np.zeros(len(curves), dtype=bool)
     result.curves = list(curves)
+    result.image_circle = image_circle
 
     def refuse(reason):
         result.accepted = False
@@ -248,20 +285,28 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
         result.uncertainty_px = zs_u_px
         return result
 
+    circle_limit = None  # nothing is imaged beyond the image circle: the reach is measured to it
+    if image_circle is not None:
+        circle_limit = image_circle.radius
+    elif getattr(spec, 'circle_diameter', None) is not None:
+        circle_limit = spec.circle_diameter * width / spec.width / 2.0
     if len(kept) < MIN_LINES:
         return refuse(f'too few lines: {len(kept)} usable curves of {len(curves)}, at least {MIN_LINES} needed')
     all_points = np.concatenate(kept)
-    result.coverage, result.reach = coverage_of(all_points, width, height)
+    result.coverage, result.reach = coverage_of(all_points, width, height, circle_radius=circle_limit)
     if result.reach < MIN_REACH or result.coverage < MIN_COVERAGE:
         return refuse(f'lines only near the centre (coverage): they touch {100 * result.coverage:.0f} % of the '
                       f'image and reach {100 * result.reach:.0f} % of the way to the corners; at least '
                       f'{100 * MIN_COVERAGE:.0f} % and {100 * MIN_REACH:.0f} % are needed')
 
     term = StraightnessTerm(kept, sigma=INITIAL_SIGMA_PX)
-    fov = FovTerm.from_spec(spec, fov_tolerance_deg, width, height)
+    circle = None if image_circle is None else circle_term(spec, image_circle, width, fov_tolerance_deg, zs)
+    states_fov = circle is not None and circle.circle_fov is not None
+    fov = FovTerm.from_spec(spec, fov_tolerance_deg, width, height, leave_out=('circle',) if states_fov else ())
+    zoom_terms = [t for t in (fov, circle if states_fov else None) if t is not None]
     theta_max = zs.max_field_angle()
-    priors = [fov, PrincipalPointPrior(width, height),
-              ShapePrior(zs, theta_max, REFINE_SHAPE_SIGMA, radius=SHAPE_PRIOR_ON_RADIUS)]
+    priors = [t for t in (fov, circle) if t is not None] + [
+        PrincipalPointPrior(width, height), ShapePrior(zs, theta_max, REFINE_SHAPE_SIGMA, radius=SHAPE_PRIOR_ON_RADIUS)]
     fit = fit_lines(term, priors, zs, initial)
     refined = fit.camera
     result.refined_camera = refined
@@ -277,20 +322,21 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     result.line_residual_px_before = used_term.rms(zs)
     result.line_residual_px_after = used_term.rms(refined)
     result.principal_point_shift_px = float(math.hypot(refined.cx - zs.cx, refined.cy - zs.cy))
-    result.fov_residuals_deg = dict(zip(fov.keys, fov.residuals(refined).tolist()))
+    given_fovs, fov_sigmas = _fov_statements(fov, circle if states_fov else None)
+    result.fov_residuals_deg = _fov_residuals(fov, circle if states_fov else None, refined)
     ref_u, u_layout, u_x = _fit_uncertainty(fit)
     result.refined_uncertainty_px = ref_u.rms_px
     if REZOOM:
         # the zoom from the FOVs alone (the lines' say on it is the model's artefact): after the
         # checks above, which judge the fit as it is
-        refined = rezoom(refined, fov)
+        refined = rezoom(refined, zoom_terms)
         result.refined_camera = refined
         result.line_residual_px_after = used_term.rms(refined)
 
     if result.lines_used < MIN_LINES:
         return refuse(f'too few straight lines: {result.lines_used} of {len(kept)} curves are straight under '
                       f'one camera, at least {MIN_LINES} needed')
-    result.coverage, result.reach = coverage_of(used_term.points, width, height)
+    result.coverage, result.reach = coverage_of(used_term.points, width, height, circle_radius=circle_limit)
     if result.reach < MIN_REACH or result.coverage < MIN_COVERAGE:
         return refuse(f'lines only near the centre (coverage): the straight ones touch {100 * result.coverage:.0f} % '
                       f'of the image and reach {100 * result.reach:.0f} % of the way to the corners')
@@ -299,11 +345,12 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
         return refuse('disagreement between images: most curves of image(s) '
                       f'{", ".join(str(i) for i in disagreeing)} are not straight under the camera that '
                       'straightens the others (another camera, or another lens setting?)')
-    worst = max(result.fov_residuals_deg.items(), key=lambda kv: abs(kv[1]))
-    if abs(worst[1]) > MAX_FOV_SIGMAS * fov_tolerance_deg:
+    worst = max(result.fov_residuals_deg.items(), key=lambda kv: abs(kv[1]) / fov_sigmas[kv[0]])
+    if abs(worst[1]) > MAX_FOV_SIGMAS * fov_sigmas[worst[0]]:
+        across = ' across the image circle measured in the images' if worst[0] == 'circle' and states_fov else ''
         detail = (f'the camera that straightens the lines has {worst[0]} '
-                  f'{fov.given[fov.keys.index(worst[0])] + worst[1]:.1f} degrees against the '
-                  f"spec's {fov.given[fov.keys.index(worst[0])]:g} (tolerance {fov_tolerance_deg:g})")
+                  f'{given_fovs[worst[0]] + worst[1]:.1f} degrees{across} against the '
+                  f"spec's {given_fovs[worst[0]]:g} (tolerance {fov_sigmas[worst[0]]:.3g})")
         split = _image_disagreement(fit, used_term, used_images, priors)
         if split:
             return refuse(f'{split}; all images together: {detail}')
@@ -343,7 +390,26 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     return result
 
 
-def rezoom(camera: KannalaBrandtCamera, fov: FovTerm, samples: int = 256) -> KannalaBrandtCamera:
+def _fov_statements(fov: Optional[FovTerm], circle: Optional[ImageCircleTerm]):
+    """({FOV name: given degrees}, {FOV name: sigma degrees}) of the spec's FOVs, the circle's
+    stated by ``circle`` (the measured image circle) when it is given."""
+    given, sigma = {}, {}
+    if fov is not None:
+        given.update(zip(fov.keys, fov.given.tolist()))
+        sigma.update({k: fov.sigma for k in fov.keys})
+    if circle is not None:
+        given['circle'], sigma['circle'] = circle.circle_fov, float(circle.sigma[2])
+    return given, sigma
+
+
+def _fov_residuals(fov: Optional[FovTerm], circle: Optional[ImageCircleTerm], camera) -> Dict[str, float]:
+    out = {} if fov is None else dict(zip(fov.keys, fov.residuals(camera).tolist()))
+    if circle is not None:
+        out['circle'] = float(circle.residuals(camera)[2])
+    return out
+
+
+def rezoom(camera: KannalaBrandtCamera, fov, samples: int = 256) -> KannalaBrandtCamera:
     """``camera`` composed with the zoom of its rays r -> (s x, s y, z) that fits the FOVs best
     (least squares in tolerances), as a Kannala-Brandt camera again (f and k1..k4 refitted to
     the zoomed radius function, linear least squares; the principal point is kept).
@@ -356,8 +422,20 @@ def rezoom(camera: KannalaBrandtCamera, fov: FovTerm, samples: int = 256) -> Kan
     action camera came out with every FOV 0.45 degrees wide of its exact spec and 0.8 px worse
     than zero-shot, for lines straightened twice as well. Returns ``camera`` unchanged when the
     refit would misrepresent the zoomed camera (by more than ``REZOOM_MISFIT_PX``) or the FOVs
-    gain nothing."""
+    gain nothing. ``fov``: a ``FovTerm`` or a list of terms that state the zoom (the FOVs, the
+    measured image circle's FOV)."""
     from scipy.optimize import minimize_scalar
+    terms = [t for t in (fov if isinstance(fov, (list, tuple)) else [fov]) if t is not None]
+    if not terms:
+        return camera
+
+    def chi2(cam):
+        total = 0.0
+        for t in terms:
+            r = t.residuals(cam) / t.sigma
+            total += float(r @ r)
+        return total
+
     top = camera.max_field_angle()
     top = min(top if math.isfinite(top) else camera.theta_max, camera.theta_max)
     theta = np.linspace(0.0, top, samples)[1:]
@@ -378,10 +456,9 @@ def rezoom(camera: KannalaBrandtCamera, fov: FovTerm, samples: int = 256) -> Kan
         fitted, _ = zoomed(s)
         if fitted is None:
             return 1e12
-        r = fov.residuals(fitted) / fov.sigma
-        return float(r @ r)
+        return chi2(fitted)
 
-    before = float(np.sum((fov.residuals(camera) / fov.sigma) ** 2))
+    before = chi2(camera)
     best = minimize_scalar(cost, bounds=(0.9, 1.1), method='bounded', options={'xatol': 1e-7})
     fitted, misfit = zoomed(best.x)
     if fitted is None or misfit > REZOOM_MISFIT_PX or not best.fun < before:
@@ -447,7 +524,8 @@ def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, prio
     C_g say: the test errs towards "they agree" (Q of 0.25 to 0.65 times its degrees of freedom on
     six lenses of the line benchmark and on three renders of one camera), while two cameras'
     images give 34 times (test_refine_cli's, principal points 30 px apart). The FOVs are left
-    out because they are the other suspect: a spec a few degrees off pulls each image's camera
+    out because they are the other suspect (and so is the measured image circle, which would pull
+    every image's principal point to the same place): a spec a few degrees off pulls each image's camera
     towards it by an amount that depends on how much that image's lines say, which made one
     camera's three images look apart (Q from 8 with the right spec to 31 for 14 degrees of
     freedom with hfov and dfov 8 degrees off); without them Q stays at 8 to 10, whatever the spec.
@@ -464,7 +542,7 @@ def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, prio
     for key in keys:
         mask = np.array([i == key for i in images])
         sub = term.subset(mask).with_sigma(fit.sigma_px)
-        problem = Problem(layout, [sub] + [p for p in priors if not isinstance(p, FovTerm)])
+        problem = Problem(layout, [sub] + [p for p in priors if not isinstance(p, (FovTerm, ImageCircleTerm))])
         solution = problem.solve(fit.x, max_nfev=30, ftol=SOLVE_TOL, xtol=SOLVE_TOL)
         u = problem_uncertainty(problem, solution.x, systematic_px=SYSTEMATIC_PX)
         if u.covariance is None or not np.all(np.isfinite(solution.x)):
@@ -512,15 +590,23 @@ def _held_out(fit: LineFit, term: StraightnessTerm, held: np.ndarray, priors) ->
 
 
 def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: float = FOV_TOLERANCE_DEG,
-                       rounds: int = 2, workers: int = 1, **detect_options) -> Refinement:
+                       rounds: int = 2, workers: int = 1, regions: Optional[Sequence] = None,
+                       use_image_circle: bool = True, **detect_options) -> Refinement:
     """Detect curves in ``images`` (grey or BGR arrays, all one size) with the zero-shot camera,
     fit, detect again with the refined camera and fit again (``rounds`` detections in all).
 
     Needs ``core.lines.detect`` (imported here, not at module load, so that the estimator works
     without the detector). ``workers`` > 1: the images are detected in that many threads at
     once (OpenCV and numpy release the GIL for most of the work; the curves are the same, to
-    floating-point rounding, and in the same order)."""
+    floating-point rounding, and in the same order).
+
+    Each image's usable region (``core.lines.image_region.find_image_region``, or ``regions`` if
+    already found) keeps the detector off an image circle's boundary and off black borders; the
+    image circles seen are combined (``combine_circles``: one camera) and, with
+    ``use_image_circle``, are evidence of the principal point and, with the spec's circle FOV, of
+    the scale (``refine_camera``'s ``image_circle``)."""
     from ..lines.detect import detect_curves, make_views
+    from ..lines.image_region import combine_circles, find_image_region
     images = list(images)
     if not images:
         raise ValueError('no images given')
@@ -528,6 +614,12 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     if len(sizes) != 1:
         raise ValueError('images have different sizes: ' + ', '.join(f'{w}x{h}' for h, w in sorted(sizes)))
     (height, width), = sizes
+    if regions is None:
+        regions = [find_image_region(im) for im in images]
+    elif len(regions) != len(images):
+        raise ValueError(f'{len(regions)} regions for {len(images)} images')
+    circle = combine_circles([r.circle for r in regions])
+    measured_in = sum(r.circle is not None for r in regions)
     solution = solve_zero_shot(spec, 'auto')
     camera = zero_shot_camera(spec, width, height, solution)
     result = None
@@ -536,7 +628,8 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
         curves = []
 
         def detect(item, camera=camera, views=views):
-            return detect_curves(item[1], camera, image_id=item[0], views=views, **detect_options)
+            return detect_curves(item[1], camera, image_id=item[0], views=views, region=regions[item[0]],
+                                 **detect_options)
 
         if workers > 1 and len(images) > 1:
             from concurrent.futures import ThreadPoolExecutor
@@ -547,7 +640,9 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
             for item in enumerate(images):
                 curves += detect(item)
         attempt = refine_camera(spec, curves, width, height, fov_tolerance_deg,
-                                initial=camera if result is not None else None, solution=solution)
+                                initial=camera if result is not None else None, solution=solution,
+                                image_circle=circle if use_image_circle else None)
+        attempt.image_circle, attempt.circle_measured_in = circle, measured_in
         if result is not None and not attempt.accepted:
             break
         result = attempt

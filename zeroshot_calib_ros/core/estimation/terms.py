@@ -26,6 +26,13 @@ unit), ``loss`` (None = least squares, or 'soft_l1' / 'cauchy'), ``loss_scale`` 
   of the lenses in it away from what their lines showed (median error 1.35 px instead of 0.57
   on 60 lenses, tolerance 0.5 degree, measured while choosing); at 2 % it only holds the shape
   where no line reaches.
+- ``ImageCircleTerm``: the image circle measured in the images (``core.lines.image_region``):
+  its centre is the principal point (sigma: the measurement's, and a floor
+  ``CIRCLE_CENTRE_SIGMA`` of the width for a field stop centred on the axis only to mechanical
+  tolerances), and, with the spec's circle FOV, the FOV the camera sees across the measured
+  circle (in degrees, sigma: the FOV tolerance and the radius measurement turned into degrees).
+  It replaces the ``FovTerm``'s ``circle`` (the same statement, with the measured diameter about
+  the measured centre).
 """
 from __future__ import annotations
 
@@ -48,6 +55,10 @@ SHAPE_SIGMA = 0.005
 FOV_TOLERANCE_DEG = _SPEC_FOV_TOLERANCE_DEG
 """Default standard deviation of a spec FOV (degrees); defined with the spec (zeroshot/spec.py),
 where the consistency warnings use it too."""
+
+CIRCLE_CENTRE_SIGMA = 0.002
+"""Floor of the image circle's centre as a measurement of the principal point, as a fraction of
+the width (4 px at 1920): a lens's field stop is centred on its axis to mechanical tolerances."""
 
 INVALID_FOV_DEG = 90.0
 """Residual of a FOV whose edge pixel has no ray under the camera."""
@@ -96,15 +107,20 @@ class FovTerm:
         self.sigma = float(tolerance_deg)
 
     @classmethod
-    def from_spec(cls, spec: CameraSpec, tolerance_deg: float = FOV_TOLERANCE_DEG, width=None, height=None):
+    def from_spec(cls, spec: CameraSpec, tolerance_deg: float = FOV_TOLERANCE_DEG, width=None, height=None,
+                  leave_out=()):
         """The spec's FOVs; at another image size of the same aspect (binned images) the angles
-        are the same and the circle's diameter scales."""
+        are the same and the circle's diameter scales. ``leave_out``: FOV names another term
+        states (the circle, by ``ImageCircleTerm``); None when no FOV is left."""
         width = spec.width if width is None else width
         height = spec.height if height is None else height
         circle = getattr(spec, 'circle_diameter', None)
         if circle is not None:
             circle = circle * width / spec.width
-        return cls(spec_fovs(spec), width, height, tolerance_deg, circle)
+        fovs = {k: v for k, v in spec_fovs(spec).items() if k not in leave_out}
+        if not fovs:
+            return None
+        return cls(fovs, width, height, tolerance_deg, circle if 'circle' in fovs else None)
 
     def predicted(self, camera) -> Dict[str, float]:
         out = {}
@@ -164,3 +180,53 @@ class ShapePrior:
         with np.errstate(invalid='ignore', over='ignore'):
             r = (scale * np.asarray(camera.theta_d(self.theta), dtype=float) - self.reference) / self.theta
         return np.where(np.isfinite(r), r, 1.0)
+
+
+class ImageCircleTerm:
+    """The image circle measured in the images as evidence (module docstring): residuals
+    (cx - measured cx, cy - measured cy) in px, and, with ``circle_fov``, the FOV across the
+    measured circle under the camera minus ``circle_fov`` in degrees."""
+
+    name = 'image_circle'
+    group = 1
+    loss = None
+    loss_scale = 1.0
+
+    def __init__(self, cx: float, cy: float, radius: float, centre_sigma_px: float, radius_sigma_px: float,
+                 width: int, circle_fov: Optional[float] = None, tolerance_deg: float = FOV_TOLERANCE_DEG,
+                 reference=None):
+        if not (radius > 0 and centre_sigma_px > 0 and radius_sigma_px >= 0):
+            raise ValueError(f'image circle radius {radius!r} and sigmas ({centre_sigma_px!r}, '
+                             f'{radius_sigma_px!r}) px are invalid: allowed: greater than 0')
+        self.centre = np.array([float(cx), float(cy)])
+        self.radius = float(radius)
+        self.circle_fov = None if circle_fov is None else float(circle_fov)
+        centre_sigma = math.hypot(centre_sigma_px, CIRCLE_CENTRE_SIGMA * width)
+        sigma = [centre_sigma, centre_sigma]
+        if self.circle_fov is not None:
+            # the radius's uncertainty in degrees across the circle: 2 x dtheta/dr x sigma_r
+            # (dtheta/dr of the reference camera, zero-shot's, at the circle)
+            per_px = 0.0
+            if reference is not None and radius_sigma_px > 0:
+                a, b = self._angle_deg(reference, self.radius - 0.5), self._angle_deg(reference, self.radius + 0.5)
+                per_px = abs(b - a) if math.isfinite(a) and math.isfinite(b) else 0.0
+            sigma.append(math.hypot(tolerance_deg, per_px * radius_sigma_px))
+        self.sigma = np.array(sigma)
+
+    @staticmethod
+    def _angle_deg(camera, radius: float) -> float:
+        """Degrees across a circle of ``radius`` px about the principal point under ``camera``:
+        twice the off-axis angle of its rays (a radial camera)."""
+        ray = camera.unproject(np.array([[camera.cx + radius, camera.cy]], dtype=float))[0]
+        return 2.0 * math.degrees(math.atan2(math.hypot(ray[0], ray[1]), ray[2]))
+
+    def fov_deg(self, camera) -> float:
+        """The FOV ``camera`` sees across the measured circle (degrees)."""
+        return self._angle_deg(camera, self.radius)
+
+    def residuals(self, camera) -> np.ndarray:
+        r = [camera.cx - self.centre[0], camera.cy - self.centre[1]]
+        if self.circle_fov is not None:
+            d = self.fov_deg(camera) - self.circle_fov
+            r.append(d if math.isfinite(d) else INVALID_FOV_DEG)
+        return np.array(r, dtype=float)

@@ -34,9 +34,13 @@ alignments are not merged); a long, gently curved arc (a large rug's rim) can pa
 curve whose straightness residual under the true camera is several times that of real lines:
 the estimator's robust fit has to reject it.
 
+Only the part of the image that shows the scene is searched (``image_region.find_image_region``):
+inside a fisheye's image circle, away from black or blown-out borders, by a margin, so that the
+circle's boundary (dark, vignetted, noisy; long and gently curved) is never taken for a line.
+
 ``detect_curves(image, camera) -> List[Curve]``; ``make_views(camera)`` builds the views (and
 their maps) once for several images of one camera; ``draw_curves`` makes a debug image.
-Imports numpy and OpenCV and ``core.lens`` only.
+Imports numpy and OpenCV, ``core.lens`` and ``image_region`` only.
 """
 from __future__ import annotations
 
@@ -49,6 +53,7 @@ import cv2
 import numpy as np
 
 from ..lens.models import CameraModel
+from .image_region import ImageRegion, find_image_region
 
 ImageId = Union[int, str, None]
 
@@ -309,25 +314,6 @@ def _as_grey(image) -> np.ndarray:
         lo, hi = 0.0, max(hi, 1.0)
     scale = 255.0 / (hi - lo) if hi > lo else 0.0
     return np.clip(np.nan_to_num((f - lo) * scale), 0, 255).astype(np.uint8)
-
-
-def _dead_mask(grey: np.ndarray) -> np.ndarray:
-    """Large near-black regions touching the border (outside a fisheye's image circle, masked
-    areas), dilated: no edge of them is an edge of the scene."""
-    dark = (cv2.blur(grey, (5, 5)) <= 3).astype(np.uint8)
-    if not dark.any():
-        return np.zeros(grey.shape, bool)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(dark, connectivity=4)
-    h, w = grey.shape
-    dead = np.zeros(grey.shape, bool)
-    for k in range(1, n):
-        x, y, bw, bh, area = stats[k]
-        touches = x == 0 or y == 0 or x + bw == w or y + bh == h
-        if touches and area > 0.01 * h * w:
-            dead |= labels == k
-    if dead.any():
-        dead = cv2.dilate(dead.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
-    return dead
 
 
 def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray, interpolation=cv2.INTER_LINEAR) -> np.ndarray:
@@ -805,13 +791,16 @@ DEFAULTS = dict(
 
 
 def detect_curves(image, camera: CameraModel, image_id: ImageId = None, views: Optional[ViewSet] = None,
-                  mask: Optional[np.ndarray] = None, **options) -> List[Curve]:
+                  mask: Optional[np.ndarray] = None, region: Optional[ImageRegion] = None,
+                  **options) -> List[Curve]:
     """Curves of raw pixels that image one straight 3-D line each (module docstring).
 
     ``image``: (H, W) grey or (H, W, 3) BGR, the camera's size. ``camera``: the current estimate
     (any ``CameraModel``; it decides where to look, not where the points are). ``views``: from
     ``make_views(camera)`` to reuse for several images. ``mask``: optional bool (H, W), True
-    where the image may be used. ``options``: see ``DEFAULTS`` (e.g. ``tolerance_px``,
+    where the image may be used. ``region``: the image's ``ImageRegion`` if already found (default:
+    ``find_image_region(image)``); no point outside its mask is used, so the boundary of an
+    image circle or of black borders is never a curve. ``options``: see ``DEFAULTS`` (e.g. ``tolerance_px``,
     ``min_length_px``). Longest first."""
     unknown = set(options) - set(DEFAULTS)
     if unknown:
@@ -828,7 +817,11 @@ def detect_curves(image, camera: CameraModel, image_id: ImageId = None, views: O
         views = _cached_views(camera)
     elif views.camera is not camera:
         raise ValueError('views were made for another camera: make_views(camera)')
-    usable = ~_dead_mask(grey)
+    if region is None:
+        region = find_image_region(grey)
+    elif region.mask.shape != grey.shape:
+        raise ValueError(f'region mask must have shape {grey.shape}, got {region.mask.shape}')
+    usable = region.mask.copy()
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != grey.shape:
