@@ -165,6 +165,9 @@ class Refinement:
     over them, when one was seen; None otherwise."""
     circle_measured_in: int = 0
     """How many of the images showed it."""
+    static_curves: List = field(default_factory=list, repr=False)
+    """Curves left out because they stay put across the images (the vehicle's or robot's body in
+    view, lens dirt: ``core.lines.static_curves``); not in ``curves``."""
     used: Optional[np.ndarray] = field(default=None, repr=False)
     """Boolean mask over the given curves: those the fit used."""
     curves: List = field(default_factory=list, repr=False)
@@ -604,9 +607,12 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     already found) keeps the detector off an image circle's boundary and off black borders; the
     image circles seen are combined (``combine_circles``: one camera) and, with
     ``use_image_circle``, are evidence of the principal point and, with the spec's circle FOV, of
-    the scale (``refine_camera``'s ``image_circle``)."""
+    the scale (``refine_camera``'s ``image_circle``). Curves that stay put across the images
+    (``core.lines.static_curves``: the vehicle's or robot's body in view) are left out of every
+    fit (``Refinement.static_curves``)."""
     from ..lines.detect import detect_curves, make_views
     from ..lines.image_region import combine_circles, find_image_region
+    from ..lines.static_curves import static_curves
     images = list(images)
     if not images:
         raise ValueError('no images given')
@@ -639,10 +645,13 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
         else:
             for item in enumerate(images):
                 curves += detect(item)
-        attempt = refine_camera(spec, curves, width, height, fov_tolerance_deg,
-                                initial=camera if result is not None else None, solution=solution,
-                                image_circle=circle if use_image_circle else None)
+        # what stays put while the camera moves is not the scene: left out before the fit
+        static = static_curves(curves, images)
+        attempt = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,
+                                fov_tolerance_deg, initial=camera if result is not None else None,
+                                solution=solution, image_circle=circle if use_image_circle else None)
         attempt.image_circle, attempt.circle_measured_in = circle, measured_in
+        attempt.static_curves = [c for c, s in zip(curves, static) if s]
         if result is not None and not attempt.accepted:
             break
         result = attempt
