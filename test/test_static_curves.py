@@ -1,12 +1,15 @@
 """Curves that stay put across frames (core/lines/static_curves.py): the vehicle's or robot's own
 body in view is left out of the refinement; the scene's lines, which move with the camera, are
 kept; a camera that did not move keeps everything. ROS-free."""
+import json
 import math
 
 import cv2
 import numpy as np
+import pytest
 
 import scenes
+from cli_run import run_main
 from test_image_region import CIRCULAR, dense_error_px, render
 from zeroshot_calib_ros.core.estimation.refine import refine_from_images
 from zeroshot_calib_ros.core.lines.detect import Curve
@@ -143,13 +146,17 @@ def on_vehicle_rim(points, width, height, tolerance_px=10.0):
     return float(np.mean(np.abs(f - 1.0) * min(a, b) < tolerance_px))
 
 
-def test_refine_leaves_out_the_vehicle_body_seen_in_every_frame():
-    """Three views of a 190-degree circular fisheye from a car, its bonnet in view at the bottom:
-    the bonnet's rim is found in every frame and left out; no curve the fit used lies on it; the
+@pytest.fixture(scope='module')
+def vehicle_frames():
+    """Three views of a 190-degree circular fisheye from a car, its bonnet in view at the bottom."""
+    return [render(CIRCULAR, scene, seed) for scene, seed in (('room', 1), ('corridor', 1), ('corridor', 3))]
+
+
+def test_refine_leaves_out_the_vehicle_body_seen_in_every_frame(vehicle_frames):
+    """The bonnet's rim is found in every frame and left out; no curve the fit used lies on it; the
     principal point is the image circle's and the lines'."""
-    images = [render(CIRCULAR, scene, seed) for scene, seed in (('room', 1), ('corridor', 1), ('corridor', 3))]
     spec = CameraSpec(W, H, circle_diameter=2 * CIRCULAR.circle_radius, circle_fov=190.0)
-    result = refine_from_images(spec, images)
+    result = refine_from_images(spec, vehicle_frames)
     assert len(result.static_curves) >= 3, 'the rim in each of the three frames'
     assert all(on_vehicle_rim(c.points, W, H) > 0.5 for c in result.static_curves)
     used = [c for c, ok in zip(result.curves, result.used) if ok]
@@ -159,3 +166,22 @@ def test_refine_leaves_out_the_vehicle_body_seen_in_every_frame():
     if result.accepted:
         assert dense_error_px(result.camera, CIRCULAR) < dense_error_px(result.zero_shot_camera, CIRCULAR)
     assert scenes.ALL_NUISANCES.vehicle
+
+
+def test_the_cli_says_what_it_left_out_and_draws_it(vehicle_frames, tmp_path, capsys):
+    paths = []
+    for k, image in enumerate(vehicle_frames):
+        paths.append(str(tmp_path / f'frame{k}.png'))
+        cv2.imwrite(paths[-1], image)
+    debug = str(tmp_path / 'debug.png')
+    status, out, err = run_main(['refine', *paths, '--circle-fov', '190', '--debug-image', debug], capsys)
+    assert status == 0, err
+    left_out = [line for line in out.splitlines() if line.startswith('left out')]
+    assert len(left_out) == 1 and "own body" in left_out[0], out
+    assert int(left_out[0].split()[2]) >= 3
+    canvas = cv2.imread(debug)
+    orange = np.all(np.abs(canvas[:H].astype(int) - (0, 140, 255)) <= 40, axis=2)
+    ys = np.nonzero(orange)[0]
+    assert len(ys) > 50 and np.median(ys) > 0.8 * H  # drawn where the bonnet is
+    status, out, err = run_main(['refine', *paths, '--circle-fov', '190', '--json'], capsys)
+    assert status == 0 and json.loads(out)['refinement']['curves_static'] >= 3

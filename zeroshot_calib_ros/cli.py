@@ -618,7 +618,7 @@ def _refined_summary(result, spec, solution, args):
 
 
 def _debug_image(images, result, solution, args):
-    """The canvas (written by the caller once everything has succeeded): the first image with the curves used (green) and rejected (red), and below it the image
+    """The canvas (written by the caller once everything has succeeded): the first image with the curves used (green), rejected (red) and left out for staying put (orange), and below it the image
     rectified with the zero-shot camera (left) and with the result (right)."""
     from .core.lines.detect import draw_curves
     curves = list(getattr(result, 'curves', None) or [])
@@ -626,7 +626,8 @@ def _debug_image(images, result, solution, args):
     first = [c for c in curves if c.image in (0, None)]
     used = [c for c, ok in zip(curves, used_mask) if ok and c.image in (0, None)]
     rejected = [c for c in first if not any(c is u for u in used)]
-    top = draw_curves(images[0], used, rejected, thickness=2)
+    static = [c for c in getattr(result, 'static_curves', None) or [] if c.image in (0, None)]
+    top = draw_curves(images[0], used, rejected, thickness=2, static=static)
     height, width = top.shape[:2]
     halves = []
     P = new_camera_matrix(solution.camera, args.balance, args.fov_scale)  # one P: compare the straightness
@@ -721,6 +722,7 @@ def _cmd_refine(args):
     warnings += [] if result.accepted else _fit_warnings(solution, calibration, DISTORTION_FITS['equidistant'](solution.camera))
     summary['uncertainty_px'] = result.uncertainty_px if result.accepted else result.zero_shot_uncertainty_px
     summary['refinement'] = json_safe({k: getattr(result, k) for k in REFINE_KEYS})
+    summary['refinement']['curves_static'] = len(result.static_curves)
     if getattr(result, 'zero_shot_uncertainty', None) is not None and result.zero_shot_uncertainty.warning \
             and not result.accepted:
         warnings.append(result.zero_shot_uncertainty.warning)
@@ -736,6 +738,9 @@ def _cmd_refine(args):
     else:
         print(summary_text(summary) + '\n' + _uncertainty_line(summary, args.fov_tolerance))
         print(_image_circle_line(summary['image_circle']))
+        if result.static_curves:
+            print(f'left out  {len(result.static_curves)} curves at the same pixels in the images while the scene '
+                  "moved (the vehicle's or robot's own body, lens dirt): not the scene's lines")
         print(f"refined   {'yes' if result.accepted else 'no'}: {result.reason}")
         if args.yaml:
             print(f'wrote {args.yaml}')

@@ -837,16 +837,18 @@ def detect_curves(image, camera: CameraModel, image_id: ImageId = None, views: O
     return curves[:opts['max_curves']]
 
 
-def draw_curves(image, used: Sequence[Curve] = (), rejected: Sequence[Curve] = (), thickness: int = 1):
-    """A BGR copy of ``image`` with the ``used`` curves in green and the ``rejected`` in red
-    (each curve a polyline through its points, its first point marked)."""
+def draw_curves(image, used: Sequence[Curve] = (), rejected: Sequence[Curve] = (), thickness: int = 1,
+                static: Sequence[Curve] = ()):
+    """A BGR copy of ``image`` with the ``used`` curves in green, the ``rejected`` in red and the
+    ``static`` ones (left out for staying put across the images) in orange (each curve a polyline
+    through its points, its first point marked)."""
     img = np.asarray(image)
     if img.ndim == 2:
         out = cv2.cvtColor(_as_grey(img), cv2.COLOR_GRAY2BGR)
     else:
         out = img[..., :3].copy() if img.dtype == np.uint8 else cv2.cvtColor(_as_grey(img), cv2.COLOR_GRAY2BGR)
     shift = 4
-    for curves, colour in ((rejected, (0, 0, 255)), (used, (0, 220, 0))):
+    for curves, colour in ((static, (0, 140, 255)), (rejected, (0, 0, 255)), (used, (0, 220, 0))):
         for c in curves:
             p = np.asarray(c.points, dtype=float)
             p = p[np.isfinite(p).all(axis=1)]

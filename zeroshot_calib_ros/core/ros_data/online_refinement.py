@@ -12,7 +12,8 @@ even a low-priority thread would hold the GIL for most of a fit (tens of seconds
 SciPy at 1080p) and the executor thread would lose frames. Frames go to the worker through its
 stdin (written by a sender thread, so the caller never waits on the pipe), results come back on
 its stdout (read by a reader thread). The worker accumulates the curves of the last
-``max_frames`` kept frames, detects with the current estimate (zero-shot's, the camera given as
+``max_frames`` kept frames (inside the image circle when one is seen, leaving out what stays put from
+frame to frame: the robot's own body), detects with the current estimate (zero-shot's, the camera given as
 ``initial``, or the last one it offered), and after every frame fits all of them; the gate of
 ``refine_camera`` (zero-shot the reference, whatever ``initial`` is) decides. The first accepted
 camera is a result (``take_result``). The refiner then goes on: a later fit is offered only when
@@ -302,17 +303,25 @@ class OnlineRefiner:
         return self._process is None or self._process.poll() is not None
 
     def _end_worker(self, timeout: float):
-        try:
-            self._process.stdin.close()  # may wait for a frame being written: here, not in stop()
-        except (OSError, ValueError):
-            pass
+        # closing the input waits for a frame being written, and a worker starved of CPU (SCHED_IDLE
+        # on a busy machine) may not read it for long: the close runs on its own, and the kill
+        # follows the timeout whether it has returned or not (the kill breaks the pipe, ending it)
+        closer = threading.Thread(target=self._close_input, name='refine_close', daemon=True)
+        closer.start()
         try:
             self._process.wait(timeout)
         except subprocess.TimeoutExpired:
             self._process.kill()
             self._process.wait()
+        closer.join(timeout)
         self._sender.join(timeout)
         self._reader.join(timeout)
+
+    def _close_input(self):
+        try:
+            self._process.stdin.close()
+        except (OSError, ValueError):
+            pass
 
     @property
     def pid(self) -> Optional[int]:
@@ -420,7 +429,7 @@ class _Worker:
         self.max_frames = max(1, int(start['max_frames']))
         self.finish_after = max(1, int(start.get('finish_after', FINISH_AFTER)))
         self.solution = solve_zero_shot(self.spec, 'auto')
-        self.frames = []  # curves of each kept frame, oldest first
+        self.frames = []  # each kept frame's _KeptFrame, oldest first
         self.count = 0
         self.size = None
         self.camera = None  # the estimate detections use
@@ -436,6 +445,9 @@ class _Worker:
     def frame(self, image: np.ndarray) -> dict:
         from ..estimation.refine import refine_camera, zero_shot_camera
         from ..lines.detect import detect_curves
+        from ..lines.image_region import combine_circles, find_image_region
+        from ..lines.static_curves import static_curves
+        import cv2
         start = time.monotonic()
         height, width = image.shape[:2]
         resized = ''
@@ -451,12 +463,18 @@ class _Worker:
                       zero_shot_camera(self.spec, width, height, self.solution))
         if self.offered is None and self.reference is not None:  # the calibration in force
             self.offered = (camera, self.reference)
-        curves = detect_curves(image, camera, image_id=self.count + 1)
-        frames = (self.frames + [curves])[-self.max_frames:]
-        every = [c for frame in frames for c in frame]
+        # as refine_from_images: the detector kept inside the image circle, the circle as evidence,
+        # and what stays put from frame to frame (the robot's own body) left out
+        region = find_image_region(image)
+        kept = _KeptFrame(self.count + 1, detect_curves(image, camera, image_id=self.count + 1, region=region),
+                          image if image.ndim == 2 else cv2.cvtColor(image[..., :3], cv2.COLOR_BGR2GRAY),
+                          region.circle)
+        frames = (self.frames + [kept])[-self.max_frames:]
+        every = [c for frame in frames for c in frame.curves]
+        static = static_curves(every, {frame.image_id: frame.grey for frame in frames})
         start_from = self.offered[0] if self.offered else (camera if self.initial is not None else None)
-        result = refine_camera(self.spec, every, width, height, self.tolerance, initial=start_from,
-                               solution=self.solution)
+        result = refine_camera(self.spec, [c for c, s in zip(every, static) if not s], width, height, self.tolerance, initial=start_from,
+                               solution=self.solution, image_circle=combine_circles([f.circle for f in frames]))
         self.camera, self.size, self.frames = camera, (width, height), frames  # the frame is evidence now
         self.count += 1
         reason, offer = result.reason, result.accepted
@@ -511,6 +529,16 @@ class _Worker:
         self.frames = []
         return (f'the frames are {width}x{height} now, {old[0]}x{old[1]} before: sampling restarted '
                 f'at {width}x{height}')
+
+
+@dataclasses.dataclass
+class _KeptFrame:
+    """What the worker keeps of a frame: its curves, its grey image (what stays put across frames
+    is found in the frames themselves) and the image circle seen in it."""
+    image_id: int
+    curves: list
+    grey: np.ndarray
+    circle: object
 
 
 def px_text(value) -> str:
