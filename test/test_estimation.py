@@ -516,32 +516,3 @@ def test_refine_from_images_detects_again_with_the_refined_camera(monkeypatch):
     assert all(np.allclose(c.K, zs.K) and np.allclose(c.D, zs.D) for c in detected_with[:2])
     assert detected_with[2] is TRUTH and detected_with[3] is TRUTH
     assert started_from == [None, TRUTH]
-
-
-def test_solver_jacobian_is_the_derivative_with_the_planes_refitted():
-    """The straightness term's solver Jacobian (planes held, their response projected out) is
-    the forward difference of the residuals with the planes refitted per step, robust loss
-    included, where the planes fit their curves (straight lines: the refit is then the planes'
-    pixel optimum, whose response the projection takes); and a robust solve from a camera 10 px
-    off ends where one stepping with the refitted differences does. (Through a curved outlier
-    the refitted plane is not the pixel optimum, and the two differ: the fit rejects such curves
-    after its first solve.)"""
-    rng = np.random.default_rng(3)
-    curves = views(TRUTH, rng, 8, n_views=2)
-    start = KannalaBrandtCamera(440.0, 440.0, 640.0, 400.0, W, H, [0.03, -0.01, 0.002, 0.0])
-    layout = KannalaBrandtLayout(start, 4)
-    near = layout.x_from(TRUTH)  # where a solve ends: the curves are nearly straight there
-    for loss in (None, 'soft_l1'):
-        problem = Problem(layout, [StraightnessTerm([c.points for c in curves if c.straight], sigma=0.3, loss=loss)])
-        refitted, held = problem.jacobian(near), problem.step_jacobian(near)
-        error = np.linalg.norm(held - refitted, axis=0) / np.linalg.norm(refitted, axis=0)
-        assert np.all(error < 1e-2), (loss, error)
-    priors = [FovTerm.from_spec(spec_of(TRUTH), 1.0, W, H), PrincipalPointPrior(W, H)]  # lines cannot see the zoom
-    problem = Problem(layout, [StraightnessTerm([c.points for c in curves if c.straight], sigma=0.3, loss='soft_l1')]
-                      + priors)
-    plain = Problem(layout, problem.terms)
-    plain.step_jacobian = plain.jacobian  # the solver stepping with the refitted differences
-    x = layout.x_from(start)
-    ours, theirs = problem.solve(x, ftol=1e-10, xtol=1e-10), plain.solve(x, ftol=1e-10, xtol=1e-10)
-    assert np.allclose(ours.x[:3], theirs.x[:3], rtol=0, atol=1e-3)  # f, cx, cy: px
-    assert ours.cost == pytest.approx(theirs.cost, rel=1e-6)

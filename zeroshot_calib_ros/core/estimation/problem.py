@@ -6,10 +6,7 @@ The cost is sum_t sum_g rho_t(|r_tg / sigma_t|^2) over the terms t and their res
 least squares). scipy's ``least_squares`` applies one loss to every residual, so each robust
 group is rewritten as r sqrt(rho(s) / s), whose square is rho(s) (the corrected residual of
 Triggs et al., as Ceres does), and the solver runs plain least squares on that. Jacobians are
-forward differences with the layout's steps, so every term only needs ``residuals(camera)``; a
-term with nuisance parameters of its own may give the solver's Jacobian rows itself
-(``solver_jacobian``: the straightness term eliminates its planes by a Schur complement instead
-of refitting them per column); the covariance always takes ``jacobian``.
+forward differences with the layout's steps, so every term only needs ``residuals(camera)``.
 """
 from __future__ import annotations
 
@@ -54,16 +51,16 @@ class Problem:
     def __init__(self, layout, terms: List):
         self.layout = layout
         self.terms = list(terms)
-        self._last = (None, None, None, None)
+        self._last = (None, None, None)
 
     def whitened(self, x, robust: bool = True) -> np.ndarray:
         x = np.asarray(x, dtype=float)
-        last_x, last_robust, last_r, _ = self._last
+        last_x, last_robust, last_r = self._last
         if last_x is not None and last_robust == robust and np.array_equal(last_x, x):
             return last_r
         camera = self.layout.camera(x)
         r = np.concatenate([self._whiten(t, t.residuals(camera), robust) for t in self.terms])
-        self._last = (x.copy(), robust, r, camera)
+        self._last = (x.copy(), robust, r)
         return r
 
     @staticmethod
@@ -91,34 +88,9 @@ class Problem:
             J[:, j] = (self.whitened(xp, robust) - r0) / steps[j]
         return J
 
-    def step_jacobian(self, x, robust: bool = True) -> np.ndarray:
-        """The Jacobian the solver steps with: ``jacobian``'s, but each term that eliminates
-        nuisance parameters of its own (a line's plane) and offers ``solver_jacobian`` gives its
-        rows itself (``StraightnessTerm.solver_jacobian``: the same derivative, the planes
-        eliminated by a Schur complement instead of refitted per column, at a fraction of the
-        cost)."""
-        x = np.asarray(x, dtype=float)
-        r0 = self.whitened(x, robust)
-        camera = self._last[3]
-        steps = self.layout.steps(x)
-        blocks, moved = [], None
-        for t in self.terms:
-            if hasattr(t, 'solver_jacobian'):
-                blocks.append(t.solver_jacobian(self.layout, x, camera, lambda r, t=t: self._whiten(t, r, robust)))
-                continue
-            if moved is None:
-                moved = [self.layout.camera(x + steps[j] * np.eye(x.size)[j]) for j in range(x.size)]
-            base = self._whiten(t, t.residuals(camera), robust)
-            blocks.append(np.stack([(self._whiten(t, t.residuals(m), robust) - base) / steps[j]
-                                    for j, m in enumerate(moved)], axis=1))
-        J = np.concatenate(blocks, axis=0)
-        if J.shape != (r0.size, x.size):
-            raise ValueError(f'Jacobian of shape {J.shape} for {r0.size} residuals and {x.size} parameters')
-        return J
-
     def solve(self, x0, max_nfev: int = 60, ftol: float = 1e-10, xtol: float = 1e-10) -> ProblemSolution:
         x0 = np.asarray(x0, dtype=float)
-        result = least_squares(self.whitened, x0, jac=lambda x: self.step_jacobian(x), method='trf',
+        result = least_squares(self.whitened, x0, jac=lambda x: self.jacobian(x), method='trf',
                                x_scale='jac', max_nfev=max_nfev, ftol=ftol, xtol=xtol, gtol=1e-12)
         return ProblemSolution(result.x, float(result.cost), result.jac, bool(result.success),
                                str(result.message), int(result.nfev))

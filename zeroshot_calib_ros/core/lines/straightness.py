@@ -56,8 +56,6 @@ from ..lens.models import CameraModel
 INVALID_PX = 50.0
 TANGENT_STEP = 1e-6
 """Radians along the great circle for the finite-difference tangent of a curve's image."""
-PLANE_STEP = 1e-6
-"""Radians by which a plane is tilted for the finite-difference Jacobian of its residuals."""
 """Residual (px per coordinate) given to a point the camera cannot unproject or project."""
 
 
@@ -155,7 +153,6 @@ class StraightnessTerm:
         self.reweight = reweight
         self.perpendicular = perpendicular
         self.invalid_px = float(invalid_px)
-        self._last = None
 
     def __len__(self):
         return len(self.curves)
@@ -174,72 +171,6 @@ class StraightnessTerm:
 
     def point_residuals(self, camera: CameraModel) -> np.ndarray:
         """(N, 2) observed minus re-projected pixels, NaN where the camera has no ray."""
-        return self._evaluate(camera)[0].copy()
-
-    def solver_jacobian(self, layout, x, camera: CameraModel, whiten) -> np.ndarray:
-        """d whiten(residuals) / d x (2N, len(x)) with every curve's plane eliminated: the
-        Jacobian the solver steps with (``Problem.step_jacobian``).
-
-        ``residuals`` eliminates the planes by refitting them at every evaluation, so its
-        forward differences (``Problem.jacobian``, what the covariance takes) cost two plane fits
-        and two projections per column. Here the planes are held where they are under
-        ``camera`` (``layout.camera(x)``): the columns of the camera's parameters then cost one
-        unproject and one projection each, and two more columns per curve, the plane's two
-        tilts, cost one projection; the planes' part of each camera column is then projected out
-        curve by curve (the Schur complement of the planes, the variable-projection Jacobian of
-        Golub and Pereyra: planes that follow the camera). ``whiten`` maps residuals (2N,) to
-        the whitened ones the problem sums."""
-        residual, normals, rays, ok = self._evaluate(camera)
-        raw0 = self._finite(residual)
-        base = whiten(raw0)
-        steps = layout.steps(x)
-        n, p = len(self.points), len(x)
-        D = np.empty((2 * n, p))                                 # d residuals / d x, planes held
-        for j in range(p):
-            xp = np.array(x, dtype=float)
-            xp[j] += steps[j]
-            moved = layout.camera(xp)
-            r = moved.unproject(self.points)
-            good = np.all(np.isfinite(r), axis=1)
-            res = self._residual(moved, np.where(good[:, None], r, 0.0), normals)
-            res[~good] = np.nan
-            D[:, j] = (self._finite(res) - raw0) / steps[j]
-        # the planes' tilts about two axes perpendicular to each normal
-        ref = np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-        e1 = ref - np.einsum('ij,ij->i', ref, normals)[:, None] * normals
-        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-        e2 = np.cross(normals, e1)
-        A = np.empty((n, 2, 2))                                  # per point: 2 residuals x 2 tilts
-        for k, e in enumerate((e1, e2)):
-            tilted = normals + PLANE_STEP * e
-            tilted /= np.linalg.norm(tilted, axis=1, keepdims=True)
-            res = self._residual(camera, rays, tilted)
-            res[~ok] = np.nan
-            A[:, :, k] = ((self._finite(res) - raw0) / PLANE_STEP).reshape(n, 2)
-        # the planes minimise the pixel distances (``fit_planes``, reweighted), so each curve's
-        # plane follows the camera by -(A^T A)^+ A^T B (A its tilt columns, B its camera ones)
-        B = D.reshape(n, 2, p)
-        AtA = np.add.reduceat(np.einsum('irk,irl->ikl', A, A).reshape(n, 4), self.starts).reshape(-1, 2, 2)
-        AtB = np.add.reduceat(np.einsum('irk,irl->ikl', A, B).reshape(n, 2 * p), self.starts).reshape(-1, 2, p)
-        follow = np.linalg.pinv(AtA) @ AtB                       # (C, 2, p)
-        reduced = (B - np.einsum('irk,ikl->irl', A, follow[self.curve_of_point])).reshape(2 * n, p)
-        # through the whitening (robust: not linear) by the same forward step as ``residuals``'s
-        # differences take, so that the columns are theirs
-        J = np.empty((2 * n, p))
-        for j in range(p):
-            J[:, j] = (whiten(raw0 + steps[j] * reduced[:, j]) - base) / steps[j]
-        return J
-
-    def _finite(self, residual: np.ndarray) -> np.ndarray:
-        return np.where(np.isfinite(residual), residual, self.invalid_px).ravel()
-
-    def _evaluate(self, camera: CameraModel):
-        """(point residuals (N, 2), normals (C, 3), rays (N, 3) (0 where none), ok (N,)) under
-        ``camera``, remembered for the last camera object (a solver asks for the residuals and
-        then for the Jacobian at the same camera)."""
-        last = self._last
-        if last is not None and last[0] is camera:
-            return last[1]
         rays = camera.unproject(self.points)
         ok = np.all(np.isfinite(rays), axis=1)
         safe = np.where(ok[:, None], rays, 0.0)
@@ -258,8 +189,7 @@ class StraightnessTerm:
             normals = fit_planes(safe, self.starts, np.where(ok, scale, 0.0))
             residual = self._residual(camera, safe, normals)
         residual[~ok] = np.nan
-        self._last = (camera, (residual, normals, safe, ok))
-        return self._last[1]
+        return residual
 
     def _residual(self, camera, rays, normals):
         n = normals[self.curve_of_point]
@@ -312,7 +242,8 @@ class StraightnessTerm:
 
     def residuals(self, camera: CameraModel) -> np.ndarray:
         """Unwhitened residuals (2N,) in pixels; points without a ray get ``invalid_px``."""
-        return self._finite(self._evaluate(camera)[0])
+        r = self.point_residuals(camera)
+        return np.where(np.isfinite(r), r, self.invalid_px).ravel()
 
     def curve_rms(self, camera: CameraModel) -> np.ndarray:
         """RMS point distance (px) of each curve from the image of its fitted line (inf: a point
