@@ -190,3 +190,49 @@ def test_circle_fov_without_a_circle_in_the_images_is_one_error_line(views, caps
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith('zeroshot-calib: error: ') and '--circle-diameter' in lines[0]
     assert 'circle' in lines[0] and 'found' in lines[0]
+
+
+def test_refine_reports_progress_to_its_callback_and_the_result_is_the_same(views):
+    from zeroshot_calib_ros.core.estimation.refine import refine_from_images
+    images = [cv2.imread(p, cv2.IMREAD_GRAYSCALE) for p in views[:2]]
+    spec = CameraSpec(640, 360, hfov=172, vfov=97, dfov=198)
+    reports = []
+    with_callback = refine_from_images(spec, images, progress=reports.append)
+    without = refine_from_images(spec, images)
+    assert (with_callback.accepted, with_callback.reason) == (without.accepted, without.reason)
+    assert np.array_equal(with_callback.camera.K, without.camera.K)
+    assert np.array_equal(with_callback.camera.D, without.camera.D)
+    stages = [(r.stage, r.round, r.frames_done) for r in reports]
+    fits = [k for k, r in enumerate(reports) if r.stage == 'fit']
+    # each round: one report per image, then one for the fit
+    assert stages[:3] == [('detection', 1, 1), ('detection', 1, 2), ('fit', 1, 2)], stages
+    assert len(fits) in (1, 2) and fits[-1] == len(reports) - 1
+    assert all(r.frames == 2 and r.rounds == 2 for r in reports)
+    assert 0 < reports[0].lines <= reports[1].lines  # curves so far in the round
+    assert reports[2].lines > 0  # the lines the first fit used
+    assert reports[-1].lines == without.lines_used and reports[-1].accepted == without.accepted
+    assert reports[0].camera.fx > 0 and 0 < reports[0].camera.cx < 640 and 0 < reports[0].camera.cy < 360
+
+
+def test_progress_is_silent_on_a_pipe_and_shown_with_the_flag(views, capsys, monkeypatch):
+    status, quiet, err = run(capsys, *views[:2], *SPEC_FLAGS, '--json')
+    assert status == 0, err
+    assert 'refine round' not in err
+    status, shown, err = run(capsys, *views[:2], *SPEC_FLAGS, '--json', '--progress')
+    assert status == 0, err
+    assert json.loads(shown) == json.loads(quiet)  # progress changes nothing
+    lines = [line for line in err.splitlines() if line.startswith('zeroshot-calib: refine round ')]
+    # not a terminal: one line per report, no carriage returns
+    assert '\r' not in err and len(lines) >= 3, err
+    assert lines[0].startswith('zeroshot-calib: refine round 1/2: 1/2 images, ') and 'lines found' in lines[0]
+    assert 'f ' in lines[0] and 'principal point (' in lines[0]
+    assert any('fitted' in line for line in lines)
+    # a terminal: shown without the flag, one line rewritten in place; --json keeps it quiet
+    import zeroshot_calib_ros.cli as cli
+    monkeypatch.setattr(cli, '_is_terminal', lambda stream: True)
+    status, out, err = run(capsys, *views[:2], *SPEC_FLAGS, '--json')
+    assert status == 0 and 'refine round' not in err
+    status, out, err = run(capsys, *views[:2], *SPEC_FLAGS)
+    assert status == 0, err
+    assert err.startswith('\rzeroshot-calib: refine round 1/2: 1/2 images') and err.count('\r') >= 3, err
+    assert '\n' in err and 'fitted' in err.split('\n')[0]

@@ -660,6 +660,46 @@ MIN_REFINE_IMAGE_SIDE = 32
 as implausible, without naming the image)."""
 
 
+def _is_terminal(stream) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):  # no such method, or a closed stream
+        return False
+
+
+class _RefineProgressLine:
+    """``refine``'s progress on a stream: one line rewritten in place (``\r``) on a terminal, a
+    line per report elsewhere (a log file has no use for carriage returns)."""
+
+    def __init__(self, stream):
+        self.stream = stream
+        self.in_place = _is_terminal(stream)
+        self.width = 0
+
+    def __call__(self, p) -> None:
+        camera = p.camera
+        estimate = f'f {camera.fx:.1f} px, principal point ({camera.cx:.1f}, {camera.cy:.1f})'
+        if p.stage == 'detection':
+            text = (f'round {p.round}/{p.rounds}: {p.frames_done}/{p.frames} images, {p.lines} lines found; '
+                    f'looking with {estimate}')
+        else:
+            text = (f'round {p.round}/{p.rounds}: fitted {p.lines} lines: {estimate} '
+                    f'({"accepted" if p.accepted else "not accepted"})')
+        text = f'zeroshot-calib: refine {text}'
+        if self.in_place:
+            self.stream.write('\r' + text.ljust(self.width))
+            self.width = len(text)
+        else:
+            self.stream.write(text + '\n')
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.in_place and self.width:
+            self.stream.write('\n')
+            self.stream.flush()
+            self.width = 0
+
+
 def _cmd_refine(args):
     from .core.estimation.refine import circle_diameter_agrees, refine_from_images  # scipy: only when asked
     from .core.lines.image_region import combine_circles, find_image_region
@@ -710,8 +750,15 @@ def _cmd_refine(args):
             f'{circle.diameter:.1f} +- {2 * circle.radius_sigma_px:.1f} px ({measured_in} of {len(images)} images); '
             'the given diameter is used, the measured centre only as the principal point')
     solution = solve_zero_shot(spec, 'auto', fov_tolerance=args.fov_tolerance)
+    progress = _RefineProgressLine(sys.stderr) if args.progress or (not args.json and _is_terminal(sys.stderr)) \
+        else None
     # the images are detected in parallel threads (the same curves, in the same order)
-    result = refine_from_images(spec, images, args.fov_tolerance, workers=os.cpu_count() or 1, regions=regions)
+    try:
+        result = refine_from_images(spec, images, args.fov_tolerance, workers=os.cpu_count() or 1, regions=regions,
+                                    progress=progress)
+    finally:
+        if progress is not None:
+            progress.close()
     summary, calibration = _refined_summary(result, spec, solution, args)
     summary['image_circle'] = None if circle is None else {
         'cx': circle.cx, 'cy': circle.cy, 'diameter': circle.diameter,
@@ -1163,6 +1210,8 @@ def build_parser() -> argparse.ArgumentParser:
     refine.add_argument('--debug-image', metavar='OUT.png',
                         help='write the curves used (green) and rejected (red), and the image rectified '
                              'before (zero-shot) and after')
+    refine.add_argument('--progress', action='store_true',
+                        help='report progress on stderr (default: when stderr is a terminal, without --json)')
     refine.set_defaults(run=_cmd_refine)
 
     calib = sub.add_parser('calibrate', help='calibrate from chessboard images or a corners file (with a spec: '

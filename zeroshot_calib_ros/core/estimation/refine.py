@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence
+from typing import Callable, Dict, List, Optional, Sequence
 
 import numpy as np
 
@@ -536,7 +536,7 @@ def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, prio
     A ratio of residuals does not see it: the RMS of a curve is mostly its noise, so each image
     alone is straightened to 0.75-0.95 of its residual under those two cameras' joint fit, where
     Q weighs every point's evidence."""
-    from scipy.stats import chi2
+    from scipy.special import chdtrc  # chi^2's survival function (scipy.stats takes 1.5 s to import)
     keys = [k for k in dict.fromkeys(images) if sum(1 for i in images if i == k) >= MIN_IMAGE_LINES]
     if len(keys) < 2:
         return None
@@ -560,7 +560,7 @@ def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, prio
     mean = np.linalg.solve(total, sum(w @ x for w, x in zip(weights, xs)))
     q = float(sum((x - mean) @ w @ (x - mean) for w, x in zip(weights, xs)))
     dof = (len(xs) - 1) * len(mean)
-    p = float(chi2.sf(q, dof))
+    p = float(chdtrc(dof, q))
     if not p < DISAGREEMENT_P:
         return None
 
@@ -592,9 +592,32 @@ def _held_out(fit: LineFit, term: StraightnessTerm, held: np.ndarray, priors) ->
     return test.rms(layout.base), test.rms(layout.camera(solution.x))
 
 
+@dataclass
+class RefineProgress:
+    """What ``refine_from_images`` tells its ``progress`` callback after each image's detection
+    and after each fit."""
+
+    stage: str
+    """'detection' (an image's curves were found) or 'fit' (a round's fit is done)."""
+    round: int
+    """The detection round, from 1."""
+    rounds: int
+    frames_done: int
+    """Images detected in this round so far."""
+    frames: int
+    lines: int
+    """Curves found so far in this round ('detection'), or the lines the fit used ('fit')."""
+    camera: KannalaBrandtCamera
+    """The current estimate: the camera the curves are detected with ('detection'), or the camera
+    the fit returned, refined or zero-shot ('fit')."""
+    accepted: Optional[bool] = None
+    """Whether the fit's gate accepted it ('fit' only)."""
+
+
 def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: float = FOV_TOLERANCE_DEG,
                        rounds: int = 2, workers: int = 1, regions: Optional[Sequence] = None,
-                       use_image_circle: bool = True, **detect_options) -> Refinement:
+                       use_image_circle: bool = True, progress: Optional[Callable[[RefineProgress], None]] = None,
+                       **detect_options) -> Refinement:
     """Detect curves in ``images`` (grey or BGR arrays, all one size) with the zero-shot camera,
     fit, detect again with the refined camera and fit again (``rounds`` detections in all).
 
@@ -609,7 +632,10 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     ``use_image_circle``, are evidence of the principal point and, with the spec's circle FOV, of
     the scale (``refine_camera``'s ``image_circle``). Curves that stay put across the images
     (``core.lines.static_curves``: the vehicle's or robot's body in view) are left out of every
-    fit (``Refinement.static_curves``)."""
+    fit (``Refinement.static_curves``).
+
+    ``progress``: called with a ``RefineProgress`` after each image's detection and after each
+    fit (in the calling thread, whatever ``workers``); what it does changes nothing here."""
     from ..lines.detect import detect_curves, make_views
     from ..lines.image_region import combine_circles, find_image_region
     from ..lines.static_curves import static_curves
@@ -629,9 +655,15 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     solution = solve_zero_shot(spec, 'auto')
     camera = zero_shot_camera(spec, width, height, solution)
     result = None
-    for _ in range(max(1, rounds)):
+    total_rounds = max(1, rounds)
+    for round_index in range(total_rounds):
         views = make_views(camera)
         curves = []
+
+        def detected(done, camera=camera, round_index=round_index):
+            if progress is not None:
+                progress(RefineProgress('detection', round_index + 1, total_rounds, done, len(images), len(curves),
+                                        camera))
 
         def detect(item, camera=camera, views=views):
             return detect_curves(item[1], camera, image_id=item[0], views=views, region=regions[item[0]],
@@ -640,11 +672,13 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
         if workers > 1 and len(images) > 1:
             from concurrent.futures import ThreadPoolExecutor
             with ThreadPoolExecutor(max_workers=min(workers, len(images))) as pool:
-                for found in pool.map(detect, enumerate(images)):
+                for done, found in enumerate(pool.map(detect, enumerate(images)), 1):
                     curves += found
+                    detected(done)
         else:
-            for item in enumerate(images):
+            for done, item in enumerate(enumerate(images), 1):
                 curves += detect(item)
+                detected(done)
         # what stays put while the camera moves is not the scene: left out before the fit
         static = static_curves(curves, images)
         attempt = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,
@@ -652,6 +686,9 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
                                 solution=solution, image_circle=circle if use_image_circle else None)
         attempt.image_circle, attempt.circle_measured_in = circle, measured_in
         attempt.static_curves = [c for c, s in zip(curves, static) if s]
+        if progress is not None:
+            progress(RefineProgress('fit', round_index + 1, total_rounds, len(images), len(images),
+                                    attempt.lines_used, attempt.camera, attempt.accepted))
         if result is not None and not attempt.accepted:
             break
         result = attempt

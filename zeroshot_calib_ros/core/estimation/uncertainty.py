@@ -229,7 +229,7 @@ def probability_other_is_better(layout, x, cov: np.ndarray, other, margin_px: fl
     are fitted to the same FOVs, the FOVs' error moves both along the zoom alike, so the
     posterior's spread there (most of it when lines are the only other evidence: lines cannot
     see the zoom) says nothing about which of the two is nearer the truth."""
-    from scipy.stats import norm
+    from scipy.special import ndtr  # the normal CDF (scipy.stats takes a second and a half to import)
     A, rays = pixel_jacobian(layout, x, grid, True, after_zoom)
     camera = layout.camera(x)
     d = displacement(camera, other, rays).ravel()
@@ -247,7 +247,7 @@ def probability_other_is_better(layout, x, cov: np.ndarray, other, margin_px: fl
     gap = n * (rms_d ** 2 + 2 * margin_px * u - margin_px ** 2)
     if var <= 0:
         return (0.0 if gap > 0 else 1.0), rms_d, u
-    return float(norm.sf(gap / (2.0 * math.sqrt(var)))), rms_d, u
+    return float(ndtr(-gap / (2.0 * math.sqrt(var)))), rms_d, u
 
 
 def clustered_covariance(problem: Problem, x, J: np.ndarray) -> Tuple[Optional[np.ndarray], str]:
