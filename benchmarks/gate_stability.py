@@ -66,6 +66,7 @@ for path in (ROOT, ROOT / 'benchmarks'):
         sys.path.insert(0, str(path))
 
 import lens_profiles as lp  # noqa: E402
+from zeroshot_calib_ros.core.estimation import refine as refine_module  # noqa: E402
 from zeroshot_calib_ros.core.estimation.refine import refine_from_images  # noqa: E402
 from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec, SpecError  # noqa: E402
 
@@ -234,6 +235,39 @@ class Run:
     reach: float = math.nan
     circle_measured_in: int = 0
     seconds: float = math.nan
+    rounds: List[dict] = field(default_factory=list)
+    """Every detection round's ``refine_camera`` verdict (``_round``), in order."""
+    returned_round: Optional[int] = None
+    """Which of them (1-based) ``refine_from_images`` returned (an accepted round 1 is returned
+    when round 2 refuses)."""
+
+
+def _round(result, scale: float) -> dict:
+    """What one round's refinement decided, and the numbers behind it."""
+    return {'accepted': bool(result.accepted), 'reason': result.reason, 'lines': result.lines_used,
+            'curves': result.curves_given, 'order': result.order,
+            'p_zero_shot_better': result.zero_shot_better_probability,
+            'zero_shot_distance_px': None if result.zero_shot_distance_px is None
+            else result.zero_shot_distance_px * scale,
+            'held_out': (result.held_out_px_before, result.held_out_px_after),
+            'uncertainty_px': None if result.refined_uncertainty_px is None else result.refined_uncertainty_px * scale}
+
+
+def refine_recording_rounds(spec, images, **options):
+    """(``refine_from_images`` 's result, [each round's ``refine_camera`` result]): its calls of
+    ``refine_camera`` are recorded by wrapping the module's function for the call."""
+    attempts = []
+    original = refine_module.refine_camera
+
+    def recording(*args, **kwargs):
+        attempts.append(original(*args, **kwargs))
+        return attempts[-1]
+
+    refine_module.refine_camera = recording
+    try:
+        return refine_from_images(spec, images, **options), attempts
+    finally:
+        refine_module.refine_camera = original
 
 
 def execute(case: Case, key: str, spec, images, rays, pixels, args, label: str) -> Run:
@@ -243,7 +277,7 @@ def execute(case: Case, key: str, spec, images, rays, pixels, args, label: str) 
     run.pixels, run.scale = pixels, scale
     start = time.perf_counter()
     try:
-        result = refine_from_images(spec_k, images_k, fov_tolerance_deg=args.fov_tolerance)
+        result, attempts = refine_recording_rounds(spec_k, images_k, fov_tolerance_deg=args.fov_tolerance)
     except (SpecError, ValueError) as exc:
         run.failure = f'{type(exc).__name__}: {exc}'
         return run
@@ -269,6 +303,8 @@ def execute(case: Case, key: str, spec, images, rays, pixels, args, label: str) 
     run.sigma_px = result.sigma_px
     run.coverage, run.reach = result.coverage, result.reach
     run.circle_measured_in = result.circle_measured_in
+    run.rounds = [_round(a, scale) for a in attempts]
+    run.returned_round = next((i + 1 for i, a in enumerate(attempts) if a is result), None)
     return run
 
 
@@ -364,13 +400,24 @@ def _p(v):
     return '-' if v is None else f'{v:.3g}'
 
 
+def _rounds(r: Run) -> str:
+    """Each round's verdict (y / n), the returned one starred: 'y* n' is round 1 accepted, round 2
+    refused, round 1 returned."""
+    return ' '.join(('y' if a['accepted'] else 'n') + ('*' if i + 1 == r.returned_round else '')
+                    for i, a in enumerate(r.rounds)) or '-'
+
+
 def _diagnostics(r: Run) -> str:
     fov = ', '.join(f'{k} {v:+.2f}' for k, v in r.fov_residuals_deg.items())
     return (f'lines {r.lines}/{r.curves}, order {r.model_order}, sigma {_p(r.sigma_px)} px, held-out '
             f'{_p(r.held_out_after)} vs zero-shot {_p(r.held_out_before)} px, u {_p(r.fitted_uncertainty_px)} '
             f'vs zero-shot {_p(r.zero_shot_uncertainty_px)} px, P(zero-shot better) {_p(r.p_zero_shot_better)}, '
             f'distance to zero-shot {_p(r.zero_shot_distance_px)} px, FOV residuals (deg) {fov or "-"}, '
-            f'coverage {_f(r.coverage)} reach {_f(r.reach)}, circle seen in {r.circle_measured_in}')
+            f'coverage {_f(r.coverage)} reach {_f(r.reach)}, circle seen in {r.circle_measured_in}; '
+            f'round {r.returned_round} of {len(r.rounds)} returned' + ''.join(
+                f'; round {i + 1}: {_yes(a["accepted"])}, {a["lines"]} lines, order {a["order"]}, P(zero-shot better) '
+                f'{_p(a["p_zero_shot_better"])}, distance {_p(a["zero_shot_distance_px"])} px'
+                + ('' if a['accepted'] else f' ({a["reason"][:120]})') for i, a in enumerate(r.rounds)))
 
 
 def report(cases: List[Case], runs: List[Run], command: str, seconds: float, args) -> str:
@@ -445,8 +492,8 @@ def report(cases: List[Case], runs: List[Run], command: str, seconds: float, arg
                       f'    ({_diagnostics(c.run)})']
     lines += ['', '### Every run', '',
               '| case | run | accepted | error px | change px | fitted error px | fitted change px | lines | order '
-              '| P(zs better) | held-out px (refined / zs) | s | reason |',
-              '|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---|']
+              '| P(zs better) | held-out px (refined / zs) | rounds | s | reason |',
+              '|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|---:|---|']
     for case in cases:
         keyed = by_case.get(case.name, {})
         cs = {c.run.key: c for c in compared.get(case.name, [])}
@@ -459,7 +506,7 @@ def report(cases: List[Case], runs: List[Run], command: str, seconds: float, arg
                          f'{_f(c.change_px) if c else "-"} | {_f(r.fitted_error_px)} | '
                          f'{_f(c.fitted_change_px) if c else "-"} | {r.lines} | {r.model_order} | '
                          f'{_p(r.p_zero_shot_better)} | {_p(r.held_out_after)} / {_p(r.held_out_before)} | '
-                         f'{_f(r.seconds, 0)} | {(r.failure or r.reason)[:160]} |')
+                         f'{_rounds(r)} | {_f(r.seconds, 0)} | {(r.failure or r.reason)[:160]} |')
     return '\n'.join(lines) + '\n'
 
 
