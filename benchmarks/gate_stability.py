@@ -324,14 +324,23 @@ def _file(dump: str, case: str, key: str) -> str:
     return os.path.join(dump, f'{case}__{key}.run.pkl')
 
 
+class _Unpickler(pickle.Unpickler):
+    """Reads the runs a ``__main__`` (this script run as one) pickled, from any module."""
+
+    def find_class(self, module, name):
+        if module == '__main__' and name == 'Run':
+            return Run
+        return super().find_class(module, name)
+
+
+def load_run(path: str) -> Run:
+    with open(path, 'rb') as f:
+        return _Unpickler(f).load()
+
+
 def load_runs(directories: Sequence[str]) -> List[Run]:
-    runs = []
-    for directory in directories:
-        for name in sorted(os.listdir(directory)):
-            if name.endswith('.run.pkl'):
-                with open(os.path.join(directory, name), 'rb') as f:
-                    runs.append(pickle.load(f))
-    return runs
+    return [load_run(os.path.join(directory, name)) for directory in directories
+            for name in sorted(os.listdir(directory)) if name.endswith('.run.pkl')]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -586,8 +595,7 @@ def main(argv=None) -> int:
             case_runs: List[Run] = []
             previous = [k for k in every if k not in keys]
             for k in previous:
-                with open(_file(args.dump, case.name, k), 'rb') as f:
-                    case_runs.append(pickle.load(f))
+                case_runs.append(load_run(_file(args.dump, case.name, k)))
             if keys:
                 labels = {BASELINE: BASELINE, **perturbation_names(case.images, args.fov_delta, args.jpeg_quality)}
                 try:

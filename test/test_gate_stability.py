@@ -157,3 +157,23 @@ def test_the_lens_cases_are_line_refinements_profiles_evenly_through_them(tmp_pa
     assert len(chosen) == 20
     assert [c.name for c in cases] == [f'lens{p.index}' for p, _ in chosen]
     assert all(c.width == 960 and c.images == 4 for c in cases)
+
+
+def test_runs_pickled_by_the_script_run_as_main_are_read_back(tmp_path):
+    """The script pickles its runs as ``__main__.Run``; --rows-from (and this test) read them."""
+    import pickle
+    import types
+    main = types.ModuleType('__main__')
+
+    class Run(gs.Run):
+        pass
+    Run.__module__, Run.__qualname__ = '__main__', 'Run'
+    main.Run = Run
+    saved = sys.modules['__main__']
+    sys.modules['__main__'] = main
+    try:
+        (tmp_path / 'c__baseline.run.pkl').write_bytes(pickle.dumps(Run('c', gs.BASELINE, 'baseline', accepted=True)))
+    finally:
+        sys.modules['__main__'] = saved
+    runs = gs.load_runs([str(tmp_path)])
+    assert len(runs) == 1 and runs[0].case == 'c' and runs[0].accepted
