@@ -266,19 +266,64 @@ def _nuisances(scenes, kind: str, gt):
     return scenes.Nuisances(circle_radius=radius, vehicle=True, blur=0.6, noise=2.0, jpeg_quality=80)
 
 
+def profile_spec(gt, fovs, args) -> CameraSpec:
+    """The spec of a (scaled) profile: its FOVs (rounded with ``--fov-round``), and with
+    ``--nuisances`` the truth's FOV across the image circle (raises SpecError)."""
+    given = {k: (round(v / args.fov_round) * args.fov_round if args.fov_round else v) for k, v in fovs.items()}
+    if args.evidence == 'images' and args.nuisances != 'none':
+        # a circular fisheye's spec sheet states the FOV across its image circle: the truth's
+        radius = NUISANCE_CIRCLE * min(gt.width, gt.height)
+        ray = gt.unproject(np.array([[gt.cx + radius, gt.cy]]))[0]
+        circle_fov = 2 * math.degrees(math.atan2(math.hypot(ray[0], ray[1]), ray[2]))
+        given = dict(given, circle_diameter=2 * radius, circle_fov=circle_fov)
+    return CameraSpec(gt.width, gt.height, **given)
+
+
+def profile_seed(args, p) -> int:
+    """The seed of a profile's evidence (scene, poses, noise)."""
+    return args.seed * 100003 + p.index
+
+
+def render_views(p, gt, args, seed) -> list:
+    """``args.views`` views of ``args.scene`` rendered through ``gt`` (with ``args.nuisances``),
+    read from / written to ``args.render_cache`` when given."""
+    sys.path.insert(0, str(ROOT / 'test'))
+    import scenes
+    scene = scenes.make_scene(args.scene, seed % 1000)
+    images = []
+    for v in range(args.views):
+        tag = '' if args.nuisances == 'none' else f'_{args.nuisances}'
+        cache = (Path(args.render_cache) / f'{args.scene}_{p.index}_{gt.width}_{seed}_{v}{tag}.png'
+                 if args.render_cache else None)
+        if cache is not None and cache.exists():
+            images.append(cv2.imread(str(cache), cv2.IMREAD_UNCHANGED))
+            continue
+        pose = scenes.random_pose(scene, seed % 1000 * 10 + v)
+        image, _ = scenes.render(gt, scene, pose=pose, seed=seed % 1000 * 10 + v,
+                                 nuisances=_nuisances(scenes, args.nuisances, gt))
+        if cache is not None:
+            cache.parent.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(cache), image)
+        images.append(image)
+    return images
+
+
+def error_pixels(gt, args) -> np.ndarray:
+    """The pixels errors are measured over: the 33 x 19 grid, or with ``--nuisances`` the points
+    of a 65 x 37 grid inside the image circle (nothing outside it is imaged)."""
+    if args.evidence == 'images' and args.nuisances != 'none':
+        pixels = lp.pixel_grid(gt.width, gt.height, (65, 37))
+        radius = NUISANCE_CIRCLE * min(gt.width, gt.height)
+        return pixels[np.hypot(pixels[:, 0] - gt.cx, pixels[:, 1] - gt.cy) <= radius]
+    return lp.pixel_grid(gt.width, gt.height)
+
+
 def evaluate(p, fovs, args, seed) -> Row:
     rng = np.random.default_rng(seed)
     gt = _scaled_profile(p, fovs, args.image_width if args.evidence == 'images' else None)
-    given = {k: (round(v / args.fov_round) * args.fov_round if args.fov_round else v) for k, v in fovs.items()}
     row = Row(p.index, p.path, gt.width, gt.height)
     try:
-        if args.evidence == 'images' and args.nuisances != 'none':
-            # a circular fisheye's spec sheet states the FOV across its image circle: the truth's
-            radius = NUISANCE_CIRCLE * min(gt.width, gt.height)
-            ray = gt.unproject(np.array([[gt.cx + radius, gt.cy]]))[0]
-            circle_fov = 2 * math.degrees(math.atan2(math.hypot(ray[0], ray[1]), ray[2]))
-            given = dict(given, circle_diameter=2 * radius, circle_fov=circle_fov)
-        spec = CameraSpec(gt.width, gt.height, **given)
+        spec = profile_spec(gt, fovs, args)
     except SpecError as exc:
         row.failure = f'spec refused: {exc}'
         return row
@@ -288,24 +333,7 @@ def evaluate(p, fovs, args, seed) -> Row:
             curves = ideal_evidence(gt, args.views, rng, args.noise, args.outliers)
             result = refine_camera(spec, curves, fov_tolerance_deg=args.fov_tolerance)
         else:
-            sys.path.insert(0, str(ROOT / 'test'))
-            import scenes
-            scene = scenes.make_scene(args.scene, seed % 1000)
-            images = []
-            for v in range(args.views):
-                tag = '' if args.nuisances == 'none' else f'_{args.nuisances}'
-                cache = (Path(args.render_cache) / f'{args.scene}_{p.index}_{gt.width}_{seed}_{v}{tag}.png'
-                         if args.render_cache else None)
-                if cache is not None and cache.exists():
-                    images.append(cv2.imread(str(cache), cv2.IMREAD_UNCHANGED))
-                    continue
-                pose = scenes.random_pose(scene, seed % 1000 * 10 + v)
-                image, _ = scenes.render(gt, scene, pose=pose, seed=seed % 1000 * 10 + v,
-                                         nuisances=_nuisances(scenes, args.nuisances, gt))
-                if cache is not None:
-                    cache.parent.mkdir(parents=True, exist_ok=True)
-                    cv2.imwrite(str(cache), image)
-                images.append(image)
+            images = render_views(p, gt, args, seed)
             start = time.perf_counter()
             result = refine_from_images(spec, images, fov_tolerance_deg=args.fov_tolerance)
     except (SpecError, ValueError) as exc:
@@ -318,12 +346,7 @@ def evaluate(p, fovs, args, seed) -> Row:
         with open(os.path.join(args.dump, f'{p.index}.pkl'), 'wb') as f:
             pickle.dump({'gt': gt, 'spec': spec, 'result': result,
                          'curves': curves if args.evidence == 'ideal' else None}, f)
-    pixels = lp.pixel_grid(gt.width, gt.height)
-    if args.evidence == 'images' and args.nuisances != 'none':
-        # nothing outside the image circle is imaged: errors over the circle (a finer grid)
-        pixels = lp.pixel_grid(gt.width, gt.height, (65, 37))
-        radius = NUISANCE_CIRCLE * min(gt.width, gt.height)
-        pixels = pixels[np.hypot(pixels[:, 0] - gt.cx, pixels[:, 1] - gt.cy) <= radius]
+    pixels = error_pixels(gt, args)
     rays = gt.unproject(pixels)
     scale = lp.REFERENCE_WIDTH / gt.width
     row.zs_px = lp.best_rotation_rms(result.zero_shot_camera, rays, pixels)[0] * scale
@@ -604,7 +627,7 @@ def main(argv=None) -> int:
         if k % shards != shard:
             continue
         t0 = time.perf_counter()
-        rows.append(evaluate(p, fovs, args, args.seed * 100003 + p.index))
+        rows.append(evaluate(p, fovs, args, profile_seed(args, p)))
         rows[-1].seconds_total = time.perf_counter() - t0
         if args.dump:
             import pickle
