@@ -1408,7 +1408,7 @@ MUTANTS = [
         old='    margin = default_margin_px(w, h, circle) if margin_px is None else float(margin_px)',
         new='    margin = default_margin_px(w, h, circle)',
         behaviour='find_image_region(image, margin_px): the margin given overrides the default one',
-        tests=['test/test_image_region.py', '-k', 'not refining'],
+        tests=['test/test_image_region.py::test_a_margin_given_overrides_the_default'],
     ),
     dict(
         id='r5-region-margin-without-circle-sigmas',
@@ -1417,7 +1417,7 @@ MUTANTS = [
         new='        m += circle.fall_px',
         behaviour="The usable region stops three measurement sigmas (radius and centre) further inside an image "
                   "circle measured less precisely",
-        tests=['test/test_image_region.py', '-k', 'not refining'],
+        tests=['test/test_image_region.py::test_a_less_precisely_measured_circle_leaves_a_wider_margin'],
     ),
     dict(
         id='r5-region-min-radius-of-longer-side',
@@ -1426,7 +1426,7 @@ MUTANTS = [
         new='    return ((r >= MIN_RADIUS * max(w, h)) & (r <= 0.5 * math.hypot(w, h))',
         behaviour='An image circle is plausible from a quarter of the SHORTER side: a small circle on a wide '
                   '16:9 frame is found',
-        tests=['test/test_image_region.py', '-k', 'not refining'],
+        tests=['test/test_image_region.py::test_a_small_circle_on_a_wide_frame_is_found'],
     ),
     dict(
         id='r5-region-one-sided-arc-is-a-circle',
@@ -1434,7 +1434,8 @@ MUTANTS = [
         old='    if arc < 60.0 or not opposite:',
         new='    if arc < 60.0:',
         behaviour='An arc seen on one side only (a dark floor, a shadow, the night sky) is not an image circle',
-        tests=['test/test_image_region.py::test_no_circle_in_rectilinear_full_frame_or_dark_images'],
+        tests=['test/test_image_region.py::test_a_dark_region_bounded_by_an_arc_on_one_side_only_is_not_an_image_circle',
+               'test/test_image_region.py::test_no_circle_in_rectilinear_full_frame_or_dark_images'],
     ),
     dict(
         id='r5-combine-cy-from-cx',
@@ -1442,7 +1443,8 @@ MUTANTS = [
         old='    cy, sy = mean(np.array([c.cy for c in found]), cs)',
         new='    cy, sy = mean(np.array([c.cx for c in found]), cs)',
         behaviour="Several images' circles combine into one camera's: the weighted mean of each of cx, cy, radius",
-        tests=['test/test_image_region.py', '-k', 'combined'],
+        tests=['test/test_image_region.py::test_a_precise_measurement_outweighs_a_loose_one_in_every_coordinate',
+               'test/test_image_region.py::test_measurements_of_several_images_are_combined'],
     ),
     dict(
         id='r5-combine-weights-not-inverse-variance',
@@ -1450,7 +1452,8 @@ MUTANTS = [
         old='        wts = 1.0 / np.square(sigmas)',
         new='        wts = 1.0 / np.asarray(sigmas)',
         behaviour='combine_circles: inverse-VARIANCE weighted means (a precise measurement outweighs a loose one)',
-        tests=['test/test_image_region.py', '-k', 'combined'],
+        tests=['test/test_image_region.py::test_a_precise_measurement_outweighs_a_loose_one_in_every_coordinate',
+               'test/test_image_region.py::test_measurements_of_several_images_are_combined'],
     ),
     dict(
         id='r5-combine-scatter-not-widened',
@@ -1501,7 +1504,9 @@ MUTANTS = [
         new='SEARCH_PX = 0\n',
         behaviour="A curve's edge is looked for within a pixel across it in the other images (detector noise of "
                   'one edge: well under a pixel)',
-        tests=['test/test_static_curves.py', '-k', 'not refine and not cli'],
+        tests=['test/test_static_curves.py',
+               '-k',
+               'not cli'],
     ),
     dict(
         id='r5-refine-static-not-left-out',
@@ -1517,8 +1522,7 @@ MUTANTS = [
         old='            return detect_curves(item[1], camera, image_id=item[0], views=views, region=regions[item[0]],',
         new='            return detect_curves(item[1], camera, image_id=item[0], views=views, region=regions[0],',
         behaviour="Each image is searched inside its OWN usable region (regions[i] for images[i])",
-        tests=['test/test_image_region.py::test_refining_a_circular_render_with_nuisances_is_not_worse_than_zero_shot',
-               'test/test_static_curves.py::test_refine_leaves_out_the_vehicle_body_seen_in_every_frame'],
+        tests=['test/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
     ),
     dict(
         id='r5-refine-circle-measured-in-every-image',
@@ -1526,7 +1530,7 @@ MUTANTS = [
         old="    measured_in = sum(r.circle is not None for r in regions)\n    solution = solve_zero_shot(spec, 'auto')",
         new="    measured_in = len(regions)\n    solution = solve_zero_shot(spec, 'auto')",
         behaviour='Refinement.circle_measured_in: how many of the images showed the image circle',
-        tests=['test/test_image_region.py::test_refining_a_circular_render_with_nuisances_is_not_worse_than_zero_shot'],
+        tests=['test/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
     ),
     dict(
         id='r5-circle-term-diameter-not-scaled',
@@ -1535,7 +1539,7 @@ MUTANTS = [
         new='        given = spec.circle_diameter',
         behaviour="Binned images: the spec's circle diameter scales to the images' width before it is compared "
                   'with the measured circle (the circle FOV stays evidence)',
-        tests=['test/test_image_region.py', '-k', 'not refining'],
+        tests=['test/test_image_region.py::test_the_measured_circle_states_the_circle_fov_of_binned_images_when_the_spec_agrees'],
     ),
     dict(
         id='r5-circle-term-agreement-inverted',
@@ -1544,7 +1548,7 @@ MUTANTS = [
         new='        if circle_diameter_agrees(given, circle):',
         behaviour="The measured circle states the circle FOV only when the spec's diameter agrees with it "
                   '(else only the principal point)',
-        tests=['test/test_image_region.py'],
+        tests=['test/test_image_region.py::test_the_measured_circle_states_the_circle_fov_of_binned_images_when_the_spec_agrees'],
     ),
     dict(
         id='r5-refine-circle-not-evidence',
@@ -1552,7 +1556,7 @@ MUTANTS = [
         old='    circle = None if image_circle is None else circle_term(spec, image_circle, width, fov_tolerance_deg, zs)',
         new='    circle = None',
         behaviour='The measured image circle is evidence of the principal point (its centre) in the fit',
-        tests=['test/test_image_region.py', 'test/test_static_curves.py', '-k', 'refin'],
+        tests=['test/test_image_region.py::test_the_measured_circle_is_evidence_of_the_principal_point'],
     ),
     dict(
         id='r5-reach-to-corner-not-circle',
@@ -1561,7 +1565,8 @@ MUTANTS = [
         new='    if circle_radius is not None and 0 < circle_radius > limit:',
         behaviour="The lines' reach is measured to the image circle when it is nearer than the corners (nothing is "
                   'imaged beyond it)',
-        tests=['test/test_image_region.py', 'test/test_static_curves.py', '-k', 'refin'],
+        tests=['test/test_image_region.py::test_the_reach_of_the_lines_is_measured_to_the_image_circle_at_any_image_size',
+               'test/test_image_region.py::test_refining_a_circular_render_with_nuisances_is_not_worse_than_zero_shot'],
     ),
     dict(
         id='r5-reach-spec-circle-not-scaled',
@@ -1570,7 +1575,7 @@ MUTANTS = [
         new='        circle_limit = spec.circle_diameter / 2.0',
         behaviour="Binned images without a measured circle: the reach is measured to the spec's circle scaled to "
                   "the images' size",
-        tests=['test/test_image_region.py', '-k', 'not refining'],
+        tests=['test/test_image_region.py::test_the_reach_of_the_lines_is_measured_to_the_image_circle_at_any_image_size'],
     ),
     dict(
         id='r5-circle-term-cy-against-cx',
@@ -1595,7 +1600,7 @@ MUTANTS = [
         new='        result = refine_camera(self.spec, every, width, height,',
         behaviour="The node's refine leaves out what stays put from frame to frame (the robot's own body), as "
                   'refine does',
-        tests=['test/test_online_refinement.py', '-k', 'not streamed and not killed_after'],
+        tests=['test/test_online_refinement.py::test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_evidence'],
     ),
     dict(
         id='r5-worker-circle-not-evidence',
@@ -1603,7 +1608,7 @@ MUTANTS = [
         old='                               solution=self.solution, image_circle=combine_circles([f.circle for f in frames]))',
         new='                               solution=self.solution, image_circle=None)',
         behaviour="The node's refine takes the image circle seen in the frames as evidence, as refine does",
-        tests=['test/test_online_refinement.py', '-k', 'not streamed and not killed_after'],
+        tests=['test/test_online_refinement.py::test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_evidence'],
     ),
     dict(
         id='r5-stop-waits-on-a-starved-worker',
@@ -1613,7 +1618,8 @@ MUTANTS = [
         new="        self._close_input()\n        closer = threading.Thread(target=lambda: None)\n        closer.start()",
         behaviour='Stopping the refiner kills, after the timeout, a worker too starved of CPU to read its input '
                   '(instead of waiting on the pipe)',
-        tests=['test/test_online_refinement.py', '-k', 'not streamed and not killed_after'],
+        tests=['test/test_online_refinement.py::test_stop_kills_a_worker_that_does_not_read_its_input',
+               'test/test_online_refinement.py::test_stop_returns_at_once_while_the_worker_is_busy'],
     ),
     dict(
         id='r5-cli-measured-radius-as-diameter',
