@@ -17,8 +17,8 @@ from zeroshot_calib_ros.core.estimation.refine import refine_from_images
 from zeroshot_calib_ros.core.estimation.terms import CIRCLE_CENTRE_SIGMA, FovTerm, ImageCircleTerm
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera, PinholeCamera
 from zeroshot_calib_ros.core.lens.wide_fov import WideFovCamera
-from zeroshot_calib_ros.core.lines.image_region import (ImageCircle, combine_circles, find_image_circle,
-                                                         find_image_region)
+from zeroshot_calib_ros.core.lines.image_region import (ImageCircle, combine_circles, default_margin_px,
+                                                         find_image_circle, find_image_region)
 from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
 
 
@@ -166,3 +166,130 @@ def test_refining_a_circular_render_with_nuisances_is_not_worse_than_zero_shot()
     fitted = result.refined_camera
     assert math.hypot(fitted.cx - CIRCULAR.cx, fitted.cy - CIRCULAR.cy) < 1.5
     assert dense_error_px(fitted, CIRCULAR) < zero_shot
+
+
+def test_a_precise_measurement_outweighs_a_loose_one_in_every_coordinate():
+    """Inverse-variance weights (1 / sigma^2: 100 to 1 here), each of cx, cy and the radius from its own
+    measurements."""
+    precise = ImageCircle(100.0, 60.0, 200.0, 0.1, 0.1)
+    loose = ImageCircle(104.0, 52.0, 210.0, 1.0, 1.0)
+    both = combine_circles([loose, precise])
+    assert abs(both.cx - 100.0) < 0.1 and abs(both.cy - 60.0) < 0.1 and abs(both.radius - 200.0) < 0.15
+    assert combine_circles([precise, loose]).cy == pytest.approx(both.cy)
+
+
+def test_a_margin_given_overrides_the_default():
+    image = render(CIRCULAR, 'room', 1)
+    default = find_image_region(image)
+    wide = find_image_region(image, margin_px=default.margin_px + 20.0)
+    assert wide.margin_px == pytest.approx(default.margin_px + 20.0)
+    yy, xx = np.nonzero(wide.mask)
+    assert np.max(np.hypot(xx - wide.circle.cx, yy - wide.circle.cy)) < wide.circle.radius - wide.margin_px + 1.5
+    assert wide.mask.sum() < default.mask.sum()
+    # the black borders too
+    boxed, _ = scenes.render(PinholeCamera(300.0, 300.0, 320.0, 240.0, 640, 480), 'room', seed=1)
+    boxed = boxed.copy()
+    boxed[:60] = 0
+    assert not find_image_region(boxed, margin_px=30.0).mask[:60 + 29].any()
+
+
+def test_a_less_precisely_measured_circle_leaves_a_wider_margin():
+    """Where the boundary is uncertain, the usable region stops three sigmas (of the radius and of
+    the centre) further inside: no point of the boundary's blur gets in."""
+    sharp = ImageCircle(320.0, 240.0, 220.0, 0.2, 0.2)
+    vague = ImageCircle(320.0, 240.0, 220.0, 2.0, 3.0)
+    widened = default_margin_px(640, 480, vague) - default_margin_px(640, 480, sharp)
+    assert widened >= 3 * (3.0 - 0.2) + 3 * (2.0 - 0.2) - 1e-9
+    assert default_margin_px(640, 480, sharp) > default_margin_px(640, 480)
+
+
+def test_a_small_circle_on_a_wide_frame_is_found():
+    """A circular fisheye whose circle spans 70 % of a 16:9 frame's height: its radius is under a
+    quarter of the width but over a quarter of the height (the shorter side), and it is an image circle."""
+    small = circular_camera(640, 360, 126.0, 322.0, 178.0)
+    assert 0.25 * 360 < small.circle_radius < 0.25 * 640
+    # (no vehicle: the renderer would paint the body below so small a circle, outside it, where no lens images)
+    plain = scenes.Nuisances(circle=True, vehicle=False, blur=0.6, noise=2.0, jpeg_quality=80)
+    assert_circle_near(find_image_circle(render(small, 'room', 1, nuisances=plain)), small, 1.0)
+
+
+def test_the_measured_circle_states_the_circle_fov_of_binned_images_when_the_spec_agrees():
+    """A spec sheet for the full resolution (1280 x 960) and binned images (640 x 480): its circle
+    diameter scaled to the images agrees with the measured circle, which then states the circle FOV;
+    a spec diameter that disagrees leaves the measurement only the principal point."""
+    from zeroshot_calib_ros.core.estimation.refine import circle_term
+    measured = ImageCircle(CIRCULAR.cx, CIRCULAR.cy, CIRCULAR.circle_radius, 0.3, 0.3)
+    agrees = CameraSpec(1280, 960, circle_diameter=4 * CIRCULAR.circle_radius, circle_fov=190.0)
+    term = circle_term(agrees, measured, 640, 1.0, CIRCULAR)
+    assert term.circle_fov == 190.0 and np.allclose(term.residuals(CIRCULAR), 0.0, atol=0.05)
+    disagrees = CameraSpec(1280, 960, circle_diameter=4 * CIRCULAR.circle_radius - 60, circle_fov=190.0)
+    assert circle_term(disagrees, measured, 640, 1.0, CIRCULAR).circle_fov is None
+    assert len(circle_term(disagrees, measured, 640, 1.0, CIRCULAR).residuals(CIRCULAR)) == 2
+
+
+def test_the_reach_of_the_lines_is_measured_to_the_image_circle_at_any_image_size():
+    """Nothing is imaged beyond the image circle: lines reaching 80 % of the way to it reach 80 %,
+    whether the circle is the spec's (at full resolution, the images binned) or measured."""
+    from zeroshot_calib_ros.core.estimation.refine import refine_camera
+    r = CIRCULAR.circle_radius
+    curves = []
+    for k in range(10):  # short radial lines on one side (too few cells to fit), out to 0.8 r from the centre
+        a = 0.02 * (k - 4.5)
+        end = np.array([320 + 0.8 * r * math.cos(a), 240 + 0.8 * r * math.sin(a)])
+        start = np.array([320 + 0.6 * r * math.cos(a), 240 + 0.6 * r * math.sin(a)])
+        curves.append(np.linspace(start, end, 12))
+    full = CameraSpec(1280, 960, circle_diameter=4 * r, circle_fov=190.0)
+    binned = refine_camera(full, curves, 640, 480)
+    assert binned.reach == pytest.approx(0.8, abs=0.01), binned.reason
+    measured = ImageCircle(320.0, 240.0, r, 0.3, 0.3)
+    assert refine_camera(CameraSpec(640, 480, hfov=200.0), curves, image_circle=measured).reach == \
+        pytest.approx(0.8, abs=0.01)
+
+
+def test_each_image_is_searched_inside_its_own_region():
+    """regions[i] is images[i]'s: a region that leaves out all of the second image gives no curve of
+    it; the circle is measured in the first image only."""
+    from zeroshot_calib_ros.core.lines.image_region import ImageRegion
+    images = [render(CIRCULAR, 'room', 1), render(CIRCULAR, 'corridor', 1)]
+    first = find_image_region(images[0])
+    regions = [first, ImageRegion(np.zeros((480, 640), bool))]
+    spec = CameraSpec(640, 480, circle_diameter=first.circle.diameter, circle_fov=190.0)
+    result = refine_from_images(spec, images, regions=regions, rounds=1)
+    assert result.curves and {c.image for c in result.curves} == {0}
+    assert result.circle_measured_in == 1 and result.image_circle == first.circle
+
+
+def test_a_dark_region_bounded_by_an_arc_on_one_side_only_is_not_an_image_circle():
+    """A shadow or a night sky at one side of an ordinary photo, its edge an arc of a circle whose
+    centre is near the middle: the boundary is seen on one side only, so it is not an image circle
+    (which the frame clips, if at all, on opposite sides); the image stays usable."""
+    rng = np.random.default_rng(7)
+    scene = cv2.GaussianBlur(rng.uniform(90, 210, (480, 640)), (0, 0), 4.0)
+    for _ in range(15):
+        x, y = rng.integers(0, 600), rng.integers(0, 440)
+        cv2.rectangle(scene, (int(x), int(y)), (int(x + rng.integers(20, 120)), int(y + rng.integers(20, 120))),
+                      float(rng.uniform(60, 240)), -1)
+    yy, xx = np.mgrid[:480, :640]
+    shadow = np.hypot(xx - 200.0, yy - 240.0) > 315.0   # right of an arc from (405, 0) via (515, 240) to (405, 479)
+    scene[shadow] = 12.0
+    image = np.clip(cv2.GaussianBlur(scene, (0, 0), 1.0) + rng.normal(0, 2.0, scene.shape), 0, 255).astype(np.uint8)
+    region = find_image_region(image)
+    assert region.circle is None, region.circle
+    assert region.usable_fraction > 0.97
+
+
+def test_the_measured_circle_is_evidence_of_the_principal_point():
+    """The lines of one view and the image circle measured in it: a circle measured elsewhere (its
+    centre moved by 5 px) moves the refined principal point towards it."""
+    from zeroshot_calib_ros.core.estimation.refine import refine_camera, zero_shot_camera
+    from zeroshot_calib_ros.core.lines.detect import detect_curves
+    spec = CameraSpec(640, 480, circle_diameter=2 * CIRCULAR.circle_radius, circle_fov=190.0)
+    image = render(CIRCULAR, 'room', 1)
+    curves = detect_curves(image, zero_shot_camera(spec, 640, 480))
+    points = []
+    for dx in (0.0, 5.0):
+        circle = ImageCircle(CIRCULAR.cx + dx, CIRCULAR.cy, CIRCULAR.circle_radius, 0.3, 0.3)
+        fitted = refine_camera(spec, curves, image_circle=circle).refined_camera
+        assert fitted is not None
+        points.append((fitted.cx, fitted.cy))
+    assert points[1][0] - points[0][0] > 1.0, points

@@ -490,3 +490,52 @@ def test_refined_plumb_bob_keeps_a_camera_whose_pixels_are_not_square():
     pixels = np.stack(np.meshgrid(np.linspace(0, 1279, 33), np.linspace(0, 719, 19)), -1).reshape(-1, 2)
     moved = np.linalg.norm(record.camera().project(refined.unproject(pixels)) - pixels, axis=-1)
     assert fit_error_px < 0.5 and np.max(moved) <= fit_error_px + 1e-6, (np.max(moved), fit_error_px)
+
+
+def test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_evidence(monkeypatch):
+    """As refine does: three frames of a 190-degree circular fisheye on a car (its bonnet in view at
+    the bottom); the fit gets the frames' curves without the bonnet's rim, which stays put from frame
+    to frame, and the image circle seen in the frames, combined over them."""
+    from test_image_region import CIRCULAR, render as render_circular
+    from test_static_curves import on_vehicle_rim
+    from zeroshot_calib_ros.core.estimation import refine as refine_module
+    from zeroshot_calib_ros.core.lines import detect as detect_module
+    from zeroshot_calib_ros.core.ros_data.online_refinement import _Worker
+    spec = CameraSpec(640, 480, circle_diameter=2 * CIRCULAR.circle_radius, circle_fov=190.0)
+    zs = zero_shot_camera(spec, 640, 480)
+    detected, fits = [], []
+    real_detect = detect_module.detect_curves
+
+    def detect(*args, **kwargs):
+        found = real_detect(*args, **kwargs)
+        detected.extend(found)
+        return found
+
+    def fit(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None):
+        fits.append((list(curves), image_circle))
+        return refine_module.Refinement(zs, False, 'too few lines', None, 3.0, 0, 0, None, None, 0.0, 0.0,
+                                        zero_shot_camera=zs)
+    monkeypatch.setattr(detect_module, 'detect_curves', detect)
+    monkeypatch.setattr(refine_module, 'refine_camera', fit)
+    worker = _Worker({'spec': spec, 'fov_tolerance_deg': 1.0, 'initial': None, 'max_frames': 8, 'finish_after': 16})
+    for scene, seed in (('room', 1), ('corridor', 1), ('corridor', 3)):
+        worker.frame(render_circular(CIRCULAR, scene, seed))
+    on_rim = [c for c in detected if on_vehicle_rim(c.points, 640, 480) > 0.5]
+    assert len({c.image for c in on_rim}) == 3, 'the rim is detected in every frame'
+    curves, circle = fits[-1]
+    assert curves and max(on_vehicle_rim(c.points, 640, 480) for c in curves) < 0.5
+    assert circle is not None and circle.images == 3
+    assert max(abs(circle.cx - CIRCULAR.cx), abs(circle.cy - CIRCULAR.cy),
+               abs(circle.radius - CIRCULAR.circle_radius)) < 1.0, circle
+
+
+def test_stop_kills_a_worker_that_does_not_read_its_input(refiner_factory):
+    """A worker starved of CPU (SCHED_IDLE on a busy machine) may not read a frame for long: stop()
+    still ends it after its timeout (the sender is blocked writing a frame into the full pipe)."""
+    deaf = [sys.executable, '-c', 'import time; time.sleep(60)']
+    refiner = refiner_factory(SPEC, interval=0.0, command=deaf)
+    assert refiner.offer(np.zeros((2000, 2000), np.uint8), 0.0)  # 4 MB: far more than a pipe holds
+    time.sleep(0.3)
+    refiner.stop(timeout=0.5)
+    assert refiner.join(10.0), 'stop() waited on the pipe instead of killing the worker'
+    assert refiner._process.poll() is not None

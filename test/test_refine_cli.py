@@ -82,6 +82,7 @@ def test_refine_text_output_says_what_it_decided(capsys, tmp_path):
     lines = out.splitlines()
     assert lines[-1].startswith('refined   no: ') and len(lines[-1]) > len('refined   no: ')
     assert any(line.startswith('error bar ') for line in lines)
+    assert not any(line.startswith('left out') for line in lines)  # nothing was left out: not said
 
 
 def test_images_of_two_sizes_are_one_error_line(views, capsys, tmp_path):
@@ -173,6 +174,11 @@ def test_circle_fov_alone_measures_the_circle_diameter_in_the_images(circular_vi
     assert circle['measured_from'] == 1 and circle['diameter_used'] == 'measured'
     assert 0 < circle['diameter_sigma_px'] < 2
     assert record['refinement']['reason']
+    # the camera given (refined or zero-shot's) puts the 190-degree circle on the circle in the image
+    K, D = np.array(record['K']), np.array(record['D'])
+    camera = KannalaBrandtCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], 640, 480, D)
+    edge = camera.project(np.array([[np.sin(np.radians(95)), 0.0, np.cos(np.radians(95))]]))[0]
+    assert abs((edge[0] - camera.cx) - circle['diameter'] / 2) < 0.03 * circle['diameter'] / 2, (edge, circle)
 
 
 def test_a_given_circle_diameter_that_disagrees_with_the_images_is_warned_about(circular_view, capsys):
