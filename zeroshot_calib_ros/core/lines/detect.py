@@ -54,6 +54,7 @@ import numpy as np
 
 from ..lens.models import CameraModel
 from .image_region import ImageRegion, find_image_region
+from .profiles import peak_offsets, sample
 
 ImageId = Union[int, str, None]
 
@@ -316,22 +317,6 @@ def _as_grey(image) -> np.ndarray:
     return np.clip(np.nan_to_num((f - lo) * scale), 0, 255).astype(np.uint8)
 
 
-def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray, interpolation=cv2.INTER_LINEAR) -> np.ndarray:
-    """Samples (bilinear, or ``interpolation``) of a float32 image at positions of any shape; NaN
-    outside."""
-    shape = x.shape
-    n = x.size
-    cols = 2048
-    rows = max(1, -(-n // cols))
-    mx = np.full(rows * cols, -10.0, dtype=np.float32)
-    my = np.full(rows * cols, -10.0, dtype=np.float32)
-    mx[:n] = np.nan_to_num(x.ravel(), nan=-10.0)
-    my[:n] = np.nan_to_num(y.ravel(), nan=-10.0)
-    out = cv2.remap(img, mx.reshape(rows, cols), my.reshape(rows, cols), interpolation,
-                    borderMode=cv2.BORDER_CONSTANT, borderValue=float('nan'))
-    return out.ravel()[:n].reshape(shape)
-
-
 _LSD = threading.local()
 """One line segment detector per thread: an OpenCV LSD object is not safe to share between
 threads detecting at once."""
@@ -378,7 +363,7 @@ def _refine_edges(smooth: np.ndarray, points: np.ndarray, normals: np.ndarray, s
     s = np.arange(-half_width, half_width + step / 2, step)
     X = points[:, None, 0] + s[None, :] * normals[:, None, 0]
     Y = points[:, None, 1] + s[None, :] * normals[:, None, 1]
-    prof = _sample(smooth, X.astype(np.float32), Y.astype(np.float32), cv2.INTER_CUBIC)
+    prof = sample(smooth, X.astype(np.float32), Y.astype(np.float32), cv2.INTER_CUBIC)
     d = (prof[:, 2:] - prof[:, :-2]) / (2 * step)          # derivative at s[1:-1]
     sd = s[1:-1]
     centre = np.abs(sd) <= 1.0
@@ -387,18 +372,7 @@ def _refine_edges(smooth: np.ndarray, points: np.ndarray, normals: np.ndarray, s
     polarity = np.sign(np.bincount(seg, weights=votes, minlength=int(seg.max()) + 1 if seg.size else 0))
     polarity[polarity == 0] = 1.0
     g = np.nan_to_num(d * polarity[seg][:, None], nan=-np.inf)
-    k = np.argmax(g, axis=1)
-    n = d.shape[1]
-    ok = (k > 0) & (k < n - 1)
-    kk = np.clip(k, 1, n - 2)
-    rows = np.arange(len(k))
-    g0, g1, g2 = g[rows, kk - 1], g[rows, kk], g[rows, kk + 1]
-    with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
-        denom = g0 - 2 * g1 + g2
-        delta = np.where(denom < 0, 0.5 * (g0 - g2) / denom, 0.0)
-    delta = np.clip(np.nan_to_num(delta), -0.5, 0.5)
-    offset = sd[kk] + delta * step
-    ok &= np.isfinite(g1) & (g1 > 0)
+    offset, g1, ok = peak_offsets(g, sd, step)
     refined = points + offset[:, None] * normals
     return refined, np.where(ok, g1, 0.0), ok
 

@@ -45,6 +45,8 @@ from typing import List, Optional, Sequence
 import cv2
 import numpy as np
 
+from .profiles import peak_offsets, sample
+
 COARSE_SIDE = 400
 """The dark surround and the coarse circle are found on a copy at most this many px wide."""
 DARK_STEPS = (6.0, 12.0, 24.0, 40.0)
@@ -238,18 +240,6 @@ def _ransac_circle(points: np.ndarray, tol: float, w: int, h: int, iterations: i
     return c[0], c[1], c[2], inliers
 
 
-def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    n = x.size
-    cols = 2048
-    rows = max(1, -(-n // cols))
-    mx = np.full(rows * cols, -10.0, np.float32)
-    my = np.full(rows * cols, -10.0, np.float32)
-    mx[:n], my[:n] = x.ravel(), y.ravel()
-    out = cv2.remap(img, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_CONSTANT, borderValue=float('nan'))
-    return out.ravel()[:n].reshape(x.shape)
-
-
 def _boundary_points(smooth: np.ndarray, circle, half_width: float, step: float = 0.5):
     """Sub-pixel boundary points on radial profiles across ``circle``: on each, the steepest fall
     of brightness outward (parabolic peak). Returns (points (n, 2), angles (n,), fall (n,))."""
@@ -268,21 +258,10 @@ def _boundary_points(smooth: np.ndarray, circle, half_width: float, step: float 
     rad = r + s
     X = cx + rad[None, :] * u[:, 0:1]
     Y = cy + rad[None, :] * u[:, 1:2]
-    prof = _sample(smooth, X.astype(np.float32), Y.astype(np.float32))
+    prof = sample(smooth, X.astype(np.float32), Y.astype(np.float32))
     fall = -(prof[:, 2:] - prof[:, :-2]) / (2 * step)      # brightness falling outward, at s[1:-1]
     fall = np.nan_to_num(fall, nan=-np.inf)
-    k = np.argmax(fall, axis=1)
-    n = fall.shape[1]
-    ok = (k > 0) & (k < n - 1)
-    kk = np.clip(k, 1, n - 2)
-    rows = np.arange(len(k))
-    g0, g1, g2 = fall[rows, kk - 1], fall[rows, kk], fall[rows, kk + 1]
-    with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
-        denom = g0 - 2 * g1 + g2
-        delta = np.where(denom < 0, 0.5 * (g0 - g2) / denom, 0.0)
-    delta = np.clip(np.nan_to_num(delta), -0.5, 0.5)
-    offset = s[1:-1][kk] + delta * step
-    ok &= np.isfinite(g1) & (g1 > 0)
+    offset, g1, ok = peak_offsets(fall, s[1:-1], step)
     pts = np.stack([cx + (r + offset) * u[:, 0], cy + (r + offset) * u[:, 1]], axis=1)
     return pts[ok], phi[ok], g1[ok]
 
@@ -429,9 +408,9 @@ def _fine_circle(grey, smooth, circle, level, dark_small, s) -> tuple:
     u = np.stack([np.cos(phi[inl]), np.sin(phi[inl])], axis=1)
     fall_px = _fall_width(smooth, cx, cy, r, u)
     d_in = max(5.0, min(fall_px, 0.05 * r))    # a soft edge: its step is complete only that far in
-    inside = _sample(smooth, (cx + (r - d_in) * u[:, 0]).astype(np.float32),
+    inside = sample(smooth, (cx + (r - d_in) * u[:, 0]).astype(np.float32),
                      (cy + (r - d_in) * u[:, 1]).astype(np.float32))
-    outside = _sample(smooth, (cx + (r + 5) * u[:, 0]).astype(np.float32), (cy + (r + 5) * u[:, 1]).astype(np.float32))
+    outside = sample(smooth, (cx + (r + 5) * u[:, 0]).astype(np.float32), (cy + (r + 5) * u[:, 1]).astype(np.float32))
     ok = np.isfinite(inside) & np.isfinite(outside)
     if ok.sum() < 10:
         return None, 'no step samples'
@@ -464,8 +443,8 @@ def _step(smooth, pts, u, d):
     outside, the brightness outside)."""
     a = pts - d * u
     b = pts + d * u
-    inside = _sample(smooth, a[:, 0].astype(np.float32), a[:, 1].astype(np.float32))
-    outside = _sample(smooth, b[:, 0].astype(np.float32), b[:, 1].astype(np.float32))
+    inside = sample(smooth, a[:, 0].astype(np.float32), a[:, 1].astype(np.float32))
+    outside = sample(smooth, b[:, 0].astype(np.float32), b[:, 1].astype(np.float32))
     return np.nan_to_num(inside - outside, nan=-np.inf), np.nan_to_num(outside, nan=np.inf)
 
 
@@ -475,7 +454,7 @@ def _fall_width(smooth, cx, cy, r, u, reach: float = 24.0) -> float:
     s = np.arange(-reach, 1.0, 1.0)
     X = cx + (r + s)[None, :] * u[:, 0:1]
     Y = cy + (r + s)[None, :] * u[:, 1:2]
-    prof = _sample(smooth, X.astype(np.float32), Y.astype(np.float32))
+    prof = sample(smooth, X.astype(np.float32), Y.astype(np.float32))
     with np.errstate(invalid='ignore'):
         med = np.nanmedian(prof, axis=0) if np.isfinite(prof).any() else np.full(len(s), np.nan)
     if not np.isfinite(med).all():
