@@ -1511,10 +1511,12 @@ MUTANTS = [
     dict(
         id='r5-refine-static-not-left-out',
         file=f'{PKG}/core/estimation/refine.py',
-        old='        attempt = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,',
-        new='        attempt = refine_camera(spec, list(curves), width, height,',
-        behaviour="refine_from_images leaves the curves that stay put (the vehicle's body) out of every fit",
-        tests=['test/test_static_curves.py::test_refine_leaves_out_the_vehicle_body_seen_in_every_frame'],
+        old='    result = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,',
+        new='    result = refine_camera(spec, list(curves), width, height,',
+        behaviour="refine_from_images and the node's refine leave the curves that stay put (the vehicle's body) "
+                  'out of every fit',
+        tests=['test/test_static_curves.py::test_refine_leaves_out_the_vehicle_body_seen_in_every_frame',
+               'test/test_online_refinement.py::test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_evidence'],
     ),
     dict(
         id='r5-refine-first-region-for-every-image',
@@ -1596,7 +1598,7 @@ MUTANTS = [
     dict(
         id='r5-worker-static-not-left-out',
         file=f'{ROS_DATA}/online_refinement.py',
-        old='        result = refine_camera(self.spec, [c for c, s in zip(every, static) if not s], width, height,',
+        old='        result = refine_from_frames(self.spec, every, {frame.image_id: frame.grey for frame in frames}, width, height,',
         new='        result = refine_camera(self.spec, every, width, height,',
         behaviour="The node's refine leaves out what stays put from frame to frame (the robot's own body), as "
                   'refine does',
@@ -1605,8 +1607,8 @@ MUTANTS = [
     dict(
         id='r5-worker-circle-not-evidence',
         file=f'{ROS_DATA}/online_refinement.py',
-        old='                               solution=self.solution, image_circle=combine_circles([f.circle for f in frames]))',
-        new='                               solution=self.solution, image_circle=None)',
+        old='                                    image_circle=combine_circles([f.circle for f in frames]))',
+        new='                                    image_circle=None)',
         behaviour="The node's refine takes the image circle seen in the frames as evidence, as refine does",
         tests=['test/test_online_refinement.py::test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_evidence'],
     ),

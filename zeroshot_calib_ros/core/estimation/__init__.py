@@ -22,7 +22,9 @@ May import ``core.lens``, ``core.zeroshot``, ``core.lines`` and ``core.checkerbo
   RMS over the image of the 1-sigma pixel displacement; ``zero_shot_uncertainty``; explicitly
   ``None`` with the reason when it cannot be estimated.
 - ``refine.py``: ``refine_camera`` (the fit plus the quality gate, returning a ``Refinement``)
-  and ``refine_from_images`` (detection and fit in a loop).
+  ``refine_from_frames`` (it over several frames, what stays put across them left out: what
+  ``refine_from_images`` and the node's refine worker both fit) and ``refine_from_images``
+  (detection and fit in a loop).
 - ``board_fit.py``: ``fit_board``: the MAP over chessboard corners (``core.checkerboard.corner_term.
   CornerTerm``), the spec FOVs and the priors; ``calibrate`` with the spec as evidence.
 

@@ -631,6 +631,22 @@ class RefineProgress:
     """Whether the fit's gate accepted it ('fit' only)."""
 
 
+def refine_from_frames(spec: CameraSpec, curves: Sequence, images, width: int, height: int,
+                       fov_tolerance_deg: float = FOV_TOLERANCE_DEG, initial: Optional[KannalaBrandtCamera] = None,
+                       solution=None, image_circle=None) -> Refinement:
+    """``refine_camera`` over the curves of several frames of one moving camera, what stays put
+    across them (``core.lines.static_curves``: the vehicle's or robot's own body in view, lens
+    dirt) left out of the fit and listed in ``Refinement.static_curves``. ``images``: the frames,
+    indexed by the curves' ``image``. What ``refine_from_images`` and the node's refine worker
+    both fit."""
+    from ..lines.static_curves import static_curves
+    static = static_curves(curves, images)
+    result = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,
+                           fov_tolerance_deg, initial=initial, solution=solution, image_circle=image_circle)
+    result.static_curves = [c for c, s in zip(curves, static) if s]
+    return result
+
+
 def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: float = FOV_TOLERANCE_DEG,
                        rounds: int = 2, workers: int = 1, regions: Optional[Sequence] = None,
                        use_image_circle: bool = True, progress: Optional[Callable[[RefineProgress], None]] = None,
@@ -655,7 +671,6 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     fit (in the calling thread, whatever ``workers``); what it does changes nothing here."""
     from ..lines.detect import detect_curves, make_views
     from ..lines.image_region import combine_circles, find_image_region
-    from ..lines.static_curves import static_curves
     images = list(images)
     if not images:
         raise ValueError('no images given')
@@ -696,13 +711,10 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
             for done, item in enumerate(enumerate(images), 1):
                 curves += detect(item)
                 detected(done)
-        # what stays put while the camera moves is not the scene: left out before the fit
-        static = static_curves(curves, images)
-        attempt = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,
-                                fov_tolerance_deg, initial=camera if result is not None else None,
-                                solution=solution, image_circle=circle if use_image_circle else None)
+        attempt = refine_from_frames(spec, curves, images, width, height, fov_tolerance_deg,
+                                     initial=camera if result is not None else None, solution=solution,
+                                     image_circle=circle if use_image_circle else None)
         attempt.image_circle, attempt.circle_measured_in = circle, measured_in
-        attempt.static_curves = [c for c, s in zip(curves, static) if s]
         if progress is not None:
             progress(RefineProgress('fit', round_index + 1, total_rounds, len(images), len(images),
                                     attempt.lines_used, attempt.camera, attempt.accepted))

@@ -443,10 +443,9 @@ class _Worker:
         self.since_offer = 0
 
     def frame(self, image: np.ndarray) -> dict:
-        from ..estimation.refine import refine_camera, zero_shot_camera
+        from ..estimation.refine import refine_from_frames, zero_shot_camera
         from ..lines.detect import detect_curves
         from ..lines.image_region import combine_circles, find_image_region
-        from ..lines.static_curves import static_curves
         import cv2
         start = time.monotonic()
         height, width = image.shape[:2]
@@ -471,10 +470,10 @@ class _Worker:
                           region.circle)
         frames = (self.frames + [kept])[-self.max_frames:]
         every = [c for frame in frames for c in frame.curves]
-        static = static_curves(every, {frame.image_id: frame.grey for frame in frames})
         start_from = self.offered[0] if self.offered else (camera if self.initial is not None else None)
-        result = refine_camera(self.spec, [c for c, s in zip(every, static) if not s], width, height, self.tolerance, initial=start_from,
-                               solution=self.solution, image_circle=combine_circles([f.circle for f in frames]))
+        result = refine_from_frames(self.spec, every, {frame.image_id: frame.grey for frame in frames}, width, height,
+                                    self.tolerance, initial=start_from, solution=self.solution,
+                                    image_circle=combine_circles([f.circle for f in frames]))
         self.camera, self.size, self.frames = camera, (width, height), frames  # the frame is evidence now
         self.count += 1
         reason, offer = result.reason, result.accepted
