@@ -16,7 +16,7 @@ the zero-shot solution) and fit (``refine_camera``, both rounds), from wrappers 
 functions in the worker process; the code measured is not changed. The outcome (accepted, f and
 principal point) is printed beside the time, to show the change made it faster, not different.
 
-    .venv/bin/python benchmarks/refine_speed.py --before main [--frames 4] [--repeats 1] \\
+    .venv/bin/python benchmarks/refine_speed.py --before main [--frames 4] [--repeats 1] [--workers N] \\
         [--out benchmarks/results/refine_speed.md]
 """
 from __future__ import annotations
@@ -73,7 +73,7 @@ timed(refine_module, 'refine_camera', 'fit')
 images = [cv2.imread(p, cv2.IMREAD_GRAYSCALE) for p in job['images']]
 spec = CameraSpec(**job['spec'])
 start = time.perf_counter()
-result = refine_module.refine_from_images(spec, images)
+result = refine_module.refine_from_images(spec, images, workers=job['workers'])
 total = time.perf_counter() - start
 camera = result.camera
 print(json.dumps({'total': total, 'region': spent['region'], 'fit': spent['fit'],
@@ -164,10 +164,10 @@ def _outcome(r):
             f"{r['lines']} lines")
 
 
-def report(rows, before: str, command: str, seconds: float) -> str:
+def report(rows, before: str, command: str, seconds: float, workers: int) -> str:
     head = ['## refine_from_images: seconds per frame', '',
             f'`{command}` ({seconds:.0f} s; {os.cpu_count()} cores; load average at the end '
-            f'{os.getloadavg()[0]:.1f}).', '',
+            f'{os.getloadavg()[0]:.1f}; workers {workers}, as `zeroshot-calib refine` on this machine).', '',
             'Seconds per frame: total (region / detection / fit), the mean over the repeats, each a fresh process '
             '(the lazy imports count); the two versions alternate. Outcome: what refine_from_images returned.', '']
     if before:
@@ -193,6 +193,8 @@ def main(argv=None) -> int:
     parser.add_argument('--real', default='mynteye_s_jpl_left,ocam_fisheye190',
                         help='comma-separated real cameras (real_photos.py names; "" for none; default %(default)s)')
     parser.add_argument('--no-rendered', action='store_true', help='leave out the rendered cases')
+    parser.add_argument('--workers', type=int, default=os.cpu_count() or 1,
+                        help="refine_from_images' workers (default: the machine's cores, as `zeroshot-calib refine`)")
     parser.add_argument('--out', help='write the markdown report here too')
     args = parser.parse_args(argv)
     command = 'benchmarks/refine_speed.py ' + ' '.join(argv if argv is not None else sys.argv[1:])
@@ -211,7 +213,7 @@ def main(argv=None) -> int:
         cases += real_cases(args.frames, only) if only else []
         rows = []
         for name, size, spec, paths in cases:
-            job = {'spec': spec, 'images': paths}
+            job = {'spec': spec, 'images': paths, 'workers': args.workers}
             after, prior = [], []
             for k in range(args.repeats):
                 order = [(ROOT, after), (before_tree, prior)] if before_tree else [(ROOT, after)]
@@ -221,7 +223,7 @@ def main(argv=None) -> int:
                           f"{runs[-1]['total'] / len(paths):.2f} s/frame {_outcome(runs[-1])}",
                           file=sys.stderr, flush=True)
             rows.append((name, size, len(paths), after, prior))
-        text = report(rows, args.before, command.strip(), time.perf_counter() - start)
+        text = report(rows, args.before, command.strip(), time.perf_counter() - start, args.workers)
         print(text, end='')
         if args.out:
             with open(args.out, 'w') as f:

@@ -236,3 +236,35 @@ def test_solving_and_fitting_a_camera_imports_no_scipy_optimize():
             'print(sorted(m for m in sys.modules if m.startswith("scipy.optimize")))\n')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == '[]'
+
+
+def _inverse_by_sixty_iterations(cam, theta_d):
+    """The bracketed Newton inverse run for a fixed 60 iterations (what the model did before it
+    stopped at convergence): the reference its early stop must reproduce exactly."""
+    theta_d = np.asarray(theta_d, dtype=float)
+    lo, hi = np.zeros_like(theta_d), np.full_like(theta_d, cam.theta_max)
+    theta = np.clip(theta_d, 0.0, cam.theta_max)
+    with np.errstate(invalid='ignore', over='ignore', divide='ignore'):
+        for _ in range(60):
+            err = cam.theta_d(theta) - theta_d
+            lo, hi = np.where(err < 0, theta, lo), np.where(err > 0, theta, hi)
+            step = theta - err / cam._dtheta_d(theta)
+            theta = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
+        ok = (theta_d >= 0) & (np.abs(cam.theta_d(theta) - theta_d) <= 1e-12 * np.maximum(1.0, theta_d))
+    return np.where(ok, theta, np.nan)
+
+
+@pytest.mark.parametrize('D', [[0.0485, 0.0206, -0.0128, 0.0036], [0.303845, 0.0238101, 0.116959, -0.0382335],
+                               [0.0, -0.2, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
+def test_kannala_brandt_inverse_stops_where_more_iterations_change_nothing(D):
+    """The inverse stops iterating a value once an iteration leaves it unchanged (a fixed point):
+    the same numbers, to the last bit, as iterating all 60 times, inside the image, beyond the
+    lens's reach, at 0 and for NaN or negative input, for arrays of any shape and for scalars."""
+    cam = KannalaBrandtCamera(500.0, 500.0, 640, 360, 1280, 720, D)
+    rng = np.random.default_rng(3)
+    theta_d = np.r_[rng.uniform(0.0, 3.5, 4000), 0.0, np.nan, -0.5, np.inf, 1e-300]
+    assert np.array_equal(cam.theta_from_theta_d(theta_d), _inverse_by_sixty_iterations(cam, theta_d),
+                          equal_nan=True)
+    grid = theta_d[:4000].reshape(40, 100)[:, ::3]  # not contiguous
+    assert np.array_equal(cam.theta_from_theta_d(grid), _inverse_by_sixty_iterations(cam, grid), equal_nan=True)
+    assert cam.theta_from_theta_d(0.7) == _inverse_by_sixty_iterations(cam, 0.7)

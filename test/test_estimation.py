@@ -491,28 +491,71 @@ def test_zero_shot_error_bar_of_frames_at_another_size_is_in_their_pixels(factor
     assert result.uncertainty_px == result.zero_shot_uncertainty_px
 
 
-def test_refine_from_images_detects_again_with_the_refined_camera(monkeypatch):
-    """refine_from_images: the first detection with zero-shot's camera, the second with the
-    camera the first fit gave (where it puts the lines), which also starts the second fit."""
+def test_refine_from_images_makes_curves_again_under_the_refined_camera(monkeypatch):
+    """refine_from_images: the edge points are looked for once per image, with zero-shot's camera
+    (where to look); the first round's curves are made of them under zero-shot's camera, the second
+    round's of the same edge points under the camera the first fit gave, which also starts the
+    second fit."""
     from zeroshot_calib_ros.core.estimation import refine as refine_module
     from zeroshot_calib_ros.core.lines import detect as detect_module
     spec = spec_of(TRUTH)
     zs = zero_shot_camera(spec, W, H)
-    detected_with, started_from = [], []
+    looked_with, curves_under, started_from = [], [], []
 
-    def detect(image, camera, image_id=None, views=None, **kwargs):
-        detected_with.append(camera)
+    def find_edges(image, camera, views=None, **kwargs):
+        looked_with.append(camera)
+        return object()
+
+    def curves_from_edges(edges, camera, image_id=None):
+        curves_under.append((edges, camera, image_id))
         return []
 
     def fit(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None):
         started_from.append(initial)
         return refine_module.Refinement(TRUTH, True, 'accepted', 1.0, 3.0, 0, 0, None, None, 0.0, 0.0,
                                         zero_shot_camera=zs)
-    monkeypatch.setattr(detect_module, 'detect_curves', detect)
+    monkeypatch.setattr(detect_module, 'find_edges', find_edges)
+    monkeypatch.setattr(detect_module, 'curves_from_edges', curves_from_edges)
     monkeypatch.setattr(detect_module, 'make_views', lambda camera: None)
     monkeypatch.setattr(refine_module, 'refine_camera', fit)
     refine_from_images(spec, [np.zeros((H, W), np.uint8)] * 2, rounds=2)
-    assert len(detected_with) == 4
-    assert all(np.allclose(c.K, zs.K) and np.allclose(c.D, zs.D) for c in detected_with[:2])
-    assert detected_with[2] is TRUTH and detected_with[3] is TRUTH
+    assert len(looked_with) == 2
+    assert all(np.allclose(c.K, zs.K) and np.allclose(c.D, zs.D) for c in looked_with)
+    assert len(curves_under) == 4
+    first, second = curves_under[:2], curves_under[2:]
+    assert all(np.allclose(c.K, zs.K) and np.allclose(c.D, zs.D) for _, c, _ in first)
+    assert all(c is TRUTH for _, c, _ in second)
+    assert [e for e, _, _ in second] == [e for e, _, _ in first] and first[0][0] is not first[1][0]
+    assert [i for _, _, i in curves_under] == [0, 1, 0, 1]
     assert started_from == [None, TRUTH]
+
+
+def test_jacobian_in_threads_is_the_jacobian_in_one_thread():
+    """``jacobian_threads``: the columns computed in several threads (what ``refine --workers``
+    uses on a multi-core machine) are the same numbers as in one thread, so a user's result does
+    not depend on the machine's cores; and the threads are really used."""
+    import threading
+    from zeroshot_calib_ros.core.estimation.problem import jacobian_threads
+    rng = np.random.default_rng(5)
+    term = StraightnessTerm(line_curves(TRUTH, rng, 40))
+    seen = set()
+
+    class Recording(FovTerm):
+        def residuals(self, camera):
+            seen.add(threading.get_ident())
+            return super().residuals(camera)
+
+    spec = spec_of(TRUTH)
+    layout = KannalaBrandtLayout(zero_shot_camera(spec, W, H), 4)
+    problem = Problem(layout, [term, Recording(dict(spec.given()), W, H)])
+    x = layout.x_from(zero_shot_camera(spec, W, H)) * (1 + 1e-3)
+    alone = problem.jacobian(x)
+    assert seen == {threading.get_ident()}
+    seen.clear()
+    with jacobian_threads(2):
+        threaded = problem.jacobian(x)
+    assert np.array_equal(threaded, alone)
+    assert seen and threading.get_ident() not in seen
+    # outside the block: one thread again
+    seen.clear()
+    assert np.array_equal(problem.jacobian(x), alone) and seen == {threading.get_ident()}

@@ -451,3 +451,20 @@ def test_max_curves_keeps_the_longest(room, room_curves, kb_views):
     assert len(lengths) > 12
     few = detect_curves(room.image, KB, views=kb_views, max_curves=6)
     assert [c.length_px for c in few] == pytest.approx(lengths[:6], abs=1e-9)
+
+
+def test_detect_curves_is_find_edges_then_curves_from_edges(room, kb_views):
+    """The two halves a second refinement round uses separately give what detect_curves gives,
+    and curves made again under the same camera from the kept edge points are the same curves."""
+    from zeroshot_calib_ros.core.lines.detect import curves_from_edges, find_edges
+    image, camera = room.image, KB
+    whole = detect_curves(image, camera, image_id=3, views=kb_views)
+    edges = find_edges(image, camera, views=kb_views)
+    halves = curves_from_edges(edges, camera, image_id=3)
+    again = curves_from_edges(edges, camera, image_id=3)
+    assert len(whole) == len(halves) == len(again) > 10
+    for a, b, c in zip(whole, halves, again):
+        assert np.array_equal(a.points, b.points) and np.array_equal(b.points, c.points)
+        assert a.image == b.image == 3
+    with pytest.raises(ValueError, match='edges are of a'):
+        curves_from_edges(edges, camera.scaled(camera.width // 2, camera.height // 2))

@@ -7,14 +7,40 @@ least squares). scipy's ``least_squares`` applies one loss to every residual, so
 group is rewritten as r sqrt(rho(s) / s), whose square is rho(s) (the corrected residual of
 Triggs et al., as Ceres does), and the solver runs plain least squares on that. Jacobians are
 forward differences with the layout's steps, so every term only needs ``residuals(camera)``.
+
+A Jacobian's columns are independent evaluations of the problem: inside ``jacobian_threads(n)``
+they are computed in ``n`` threads (numpy releases the GIL over arrays of the sizes line fits
+have), with the same values in the same order as in one thread; terms must therefore keep no
+state between ``residuals`` calls (none does).
 """
 from __future__ import annotations
 
+from concurrent.futures import Executor, ThreadPoolExecutor
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
-from typing import List, Optional
+from typing import Iterator, List, Optional
 
 import numpy as np
 from scipy.optimize import least_squares
+
+
+_JACOBIAN_POOL: ContextVar[Optional[Executor]] = ContextVar('zeroshot_jacobian_pool', default=None)
+
+
+@contextmanager
+def jacobian_threads(threads: int) -> Iterator[None]:
+    """Within the block (in this thread), ``Problem.jacobian`` computes its columns in ``threads``
+    threads; 1 or less: in the calling thread, as outside the block."""
+    if threads <= 1:
+        yield
+        return
+    with ThreadPoolExecutor(max_workers=int(threads), thread_name_prefix='jacobian') as pool:
+        token = _JACOBIAN_POOL.set(pool)
+        try:
+            yield
+        finally:
+            _JACOBIAN_POOL.reset(token)
 
 
 def robust_factor(s: np.ndarray, loss: Optional[str], c: float) -> np.ndarray:
@@ -55,13 +81,19 @@ class Problem:
 
     def whitened(self, x, robust: bool = True) -> np.ndarray:
         x = np.asarray(x, dtype=float)
-        last_x, last_robust, last_r = self._last
-        if last_x is not None and last_robust == robust and np.array_equal(last_x, x):
+        # the terms are in the key: a caller may add a term between two calls at the same x
+        key = (robust, tuple(map(id, self.terms)))
+        last_x, last_key, last_r = self._last
+        if last_x is not None and last_key == key and np.array_equal(last_x, x):
             return last_r
-        camera = self.layout.camera(x)
-        r = np.concatenate([self._whiten(t, t.residuals(camera), robust) for t in self.terms])
-        self._last = (x.copy(), robust, r)
+        r = self._evaluate(x, robust)
+        self._last = (x.copy(), key, r)
         return r
+
+    def _evaluate(self, x, robust: bool) -> np.ndarray:
+        """The whitened residuals at ``x``, without the cache (safe in several threads at once)."""
+        camera = self.layout.camera(x)
+        return np.concatenate([self._whiten(t, t.residuals(camera), robust) for t in self.terms])
 
     @staticmethod
     def _whiten(term, r, robust):
@@ -81,11 +113,17 @@ class Problem:
         x = np.asarray(x, dtype=float)
         r0 = self.whitened(x, robust).copy() if r0 is None else r0
         steps = self.layout.steps(x)
-        J = np.empty((r0.size, x.size))
-        for j in range(x.size):
+
+        def column(j):
             xp = x.copy()
             xp[j] += steps[j]
-            J[:, j] = (self.whitened(xp, robust) - r0) / steps[j]
+            return (self._evaluate(xp, robust) - r0) / steps[j]
+
+        pool = _JACOBIAN_POOL.get()
+        columns = pool.map(column, range(x.size)) if pool is not None else map(column, range(x.size))
+        J = np.empty((r0.size, x.size))
+        for j, values in enumerate(columns):
+            J[:, j] = values
         return J
 
     def solve(self, x0, max_nfev: int = 60, ftol: float = 1e-10, xtol: float = 1e-10) -> ProblemSolution:

@@ -58,7 +58,7 @@ from ..lines.straightness import StraightnessTerm, curve_image, curve_points
 from ..zeroshot.solver import solve_zero_shot
 from ..zeroshot.spec import CameraSpec
 from .fit import SOLVE_TOL, LineFit, fit_lines
-from .problem import Problem
+from .problem import Problem, jacobian_threads
 from .terms import FOV_TOLERANCE_DEG, SHAPE_SIGMA, FovTerm, ImageCircleTerm, PrincipalPointPrior, ShapePrior
 from .uncertainty import (Uncertainty, displacement, image_circle_radius, pixel_grid, probability_other_is_better,
                           problem_uncertainty, zero_shot_uncertainty)
@@ -652,12 +652,14 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
                        use_image_circle: bool = True, progress: Optional[Callable[[RefineProgress], None]] = None,
                        **detect_options) -> Refinement:
     """Detect curves in ``images`` (grey or BGR arrays, all one size) with the zero-shot camera,
-    fit, detect again with the refined camera and fit again (``rounds`` detections in all).
+    fit, make curves again of the same edge points under the refined camera (``find_edges`` once,
+    ``curves_from_edges`` per round) and fit again (``rounds`` fits in all).
 
     Needs ``core.lines.detect`` (imported here, not at module load, so that the estimator works
     without the detector). ``workers`` > 1: the images are detected in that many threads at
-    once (OpenCV and numpy release the GIL for most of the work; the curves are the same, to
-    floating-point rounding, and in the same order).
+    once, and the fits' Jacobians computed in that many (``problem.jacobian_threads``): OpenCV and
+    numpy release the GIL for most of the work; the curves are the same, to floating-point
+    rounding, and in the same order, and the Jacobians are the same as in one thread.
 
     Each image's usable region (``core.lines.image_region.find_image_region``, or ``regions`` if
     already found) keeps the detector off an image circle's boundary and off black borders; the
@@ -669,7 +671,7 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
 
     ``progress``: called with a ``RefineProgress`` after each image's detection and after each
     fit (in the calling thread, whatever ``workers``); what it does changes nothing here."""
-    from ..lines.detect import detect_curves, make_views
+    from ..lines.detect import curves_from_edges, find_edges, make_views
     from ..lines.image_region import combine_circles, find_image_region
     images = list(images)
     if not images:
@@ -688,8 +690,12 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     camera = zero_shot_camera(spec, width, height, solution)
     result = None
     total_rounds = max(1, rounds)
+    edges = [None] * len(images)
     for round_index in range(total_rounds):
-        views = make_views(camera)
+        # the edge points are looked for once, with zero-shot's camera; later rounds make curves
+        # of them under the refined camera (pieces straight under it, merged), which is where a
+        # better camera changes the evidence: longer lines pass the straightness test and merge
+        views = make_views(camera) if round_index == 0 else None
         curves = []
 
         def detected(done, camera=camera, round_index=round_index):
@@ -698,8 +704,10 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
                                         camera))
 
         def detect(item, camera=camera, views=views):
-            return detect_curves(item[1], camera, image_id=item[0], views=views, region=regions[item[0]],
-                                 **detect_options)
+            index, image = item
+            if edges[index] is None:
+                edges[index] = find_edges(image, camera, views=views, region=regions[index], **detect_options)
+            return curves_from_edges(edges[index], camera, image_id=index)
 
         if workers > 1 and len(images) > 1:
             from concurrent.futures import ThreadPoolExecutor
@@ -711,9 +719,10 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
             for done, item in enumerate(enumerate(images), 1):
                 curves += detect(item)
                 detected(done)
-        attempt = refine_from_frames(spec, curves, images, width, height, fov_tolerance_deg,
-                                     initial=camera if result is not None else None, solution=solution,
-                                     image_circle=circle if use_image_circle else None)
+        with jacobian_threads(workers):
+            attempt = refine_from_frames(spec, curves, images, width, height, fov_tolerance_deg,
+                                         initial=camera if result is not None else None, solution=solution,
+                                         image_circle=circle if use_image_circle else None)
         attempt.image_circle, attempt.circle_measured_in = circle, measured_in
         if progress is not None:
             progress(RefineProgress('fit', round_index + 1, total_rounds, len(images), len(images),

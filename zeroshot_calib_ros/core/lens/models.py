@@ -246,13 +246,27 @@ class KannalaBrandtCamera(CameraModel):
         lo = np.zeros_like(theta_d)
         hi = np.full_like(theta_d, hi_theta)
         theta = np.clip(theta_d, 0.0, hi_theta)
+        # each element's iteration depends on its own (theta, lo, hi) only, and one that an
+        # iteration leaves unchanged is at a fixed point: it leaves the active set, so the loop
+        # costs what the slow elements need (Newton converges in under ten iterations; the cap is
+        # for bisection towards theta_max, where theta_d lies beyond the lens's reach)
+        flat_target, flat_theta = theta_d.reshape(-1), theta.reshape(-1)
+        flat_lo, flat_hi = lo.reshape(-1), hi.reshape(-1)
+        active = np.arange(flat_theta.size)
         for _ in range(iterations):
+            if not active.size:
+                break
+            t, lo_a, hi_a = flat_theta[active], flat_lo[active], flat_hi[active]
             with np.errstate(invalid='ignore', over='ignore', divide='ignore'):
-                err = self.theta_d(theta) - theta_d
-                lo = np.where(err < 0, theta, lo)
-                hi = np.where(err > 0, theta, hi)
-                step = theta - err / self._dtheta_d(theta)
-                theta = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
+                err = self.theta_d(t) - flat_target[active]
+                new_lo = np.where(err < 0, t, lo_a)
+                new_hi = np.where(err > 0, t, hi_a)
+                step = t - err / self._dtheta_d(t)
+                new = np.where((step > new_lo) & (step < new_hi), step, 0.5 * (new_lo + new_hi))
+            moving = ~(((new == t) | (np.isnan(new) & np.isnan(t))) & (new_lo == lo_a) & (new_hi == hi_a))
+            flat_theta[active], flat_lo[active], flat_hi[active] = new, new_lo, new_hi
+            active = active[moving]
+        theta = flat_theta.reshape(theta_d.shape)
         with np.errstate(invalid='ignore', over='ignore'):
             ok = (theta_d >= 0) & (np.abs(self.theta_d(theta) - theta_d) <= 1e-12 * np.maximum(1.0, theta_d))
         return np.where(ok, theta, np.nan)

@@ -38,7 +38,9 @@ Only the part of the image that shows the scene is searched (``image_region.find
 inside a fisheye's image circle, away from black or blown-out borders, by a margin, so that the
 circle's boundary (dark, vignetted, noisy; long and gently curved) is never taken for a line.
 
-``detect_curves(image, camera) -> List[Curve]``; ``make_views(camera)`` builds the views (and
+``detect_curves(image, camera) -> List[Curve]``, which is ``find_edges`` (steps 1-3: raw edge
+points) then ``curves_from_edges`` (steps 4-5, under a camera: a later, better estimate makes curves
+of the same edge points again without looking again); ``make_views(camera)`` builds the views (and
 their maps) once for several images of one camera; ``draw_curves`` makes a debug image.
 Imports numpy and OpenCV, ``core.lens`` and ``image_region`` only.
 """
@@ -528,8 +530,22 @@ def _make_pieces(points, rays, jac, grad, seg, view_index, opts) -> List[_Piece]
     return pieces
 
 
-def _pieces(camera: CameraModel, views: 'ViewSet', grey, smooth, usable, opts) -> List[_Piece]:
-    per_view = [_view_points(v, camera, grey, smooth, usable, opts) for v in views.views]
+@dataclass
+class EdgePoints:
+    """The sub-pixel edge points of one image, as ``find_edges`` measured them: per view that gave
+    any, its index and (points (n, 2) raw pixels, gradient (n,), LSD segment id (n,)) in order
+    along each segment. Raw measurements: the camera they were looked for with only decided
+    where to look, so a better camera can make curves of them again (``curves_from_edges``)
+    without looking again."""
+    image_size: Tuple[int, int]
+    """(width, height) of the image."""
+    per_view: List[Tuple[int, Tuple[np.ndarray, np.ndarray, np.ndarray]]]
+    options: dict = field(repr=False, default_factory=dict)
+    """The detection options they were found with (``DEFAULTS`` completed)."""
+
+
+def _pieces(camera: CameraModel, edges: EdgePoints, opts) -> List[_Piece]:
+    per_view = [points for _, points in edges.per_view]
     sizes = [len(p[0]) for p in per_view]
     if sum(sizes) == 0:
         return []
@@ -540,7 +556,7 @@ def _pieces(camera: CameraModel, views: 'ViewSet', grey, smooth, usable, opts) -
     ok_all &= np.isfinite(jac_all).all(axis=(1, 2))
     pieces = []
     start = 0
-    for view, (pts, grad, seg), n in zip(views.views, per_view, sizes):
+    for (view_index, (pts, grad, seg)), n in zip(edges.per_view, sizes):
         rays, jac, ok = rays_all[start:start + n], jac_all[start:start + n], ok_all[start:start + n]
         start += n
         if n == 0 or not ok.any():
@@ -549,7 +565,7 @@ def _pieces(camera: CameraModel, views: 'ViewSet', grey, smooth, usable, opts) -
         counts = np.bincount(seg[ok])
         keep = ok & (counts[np.minimum(seg, len(counts) - 1)] >= opts['min_points'])
         if keep.any():
-            pieces += _make_pieces(pts[keep], rays[keep], jac[keep], grad[keep], seg[keep], view.index, opts)
+            pieces += _make_pieces(pts[keep], rays[keep], jac[keep], grad[keep], seg[keep], view_index, opts)
     return pieces
 
 
@@ -764,23 +780,20 @@ DEFAULTS = dict(
 )
 
 
-def detect_curves(image, camera: CameraModel, image_id: ImageId = None, views: Optional[ViewSet] = None,
-                  mask: Optional[np.ndarray] = None, region: Optional[ImageRegion] = None,
-                  **options) -> List[Curve]:
-    """Curves of raw pixels that image one straight 3-D line each (module docstring).
-
-    ``image``: (H, W) grey or (H, W, 3) BGR, the camera's size. ``camera``: the current estimate
-    (any ``CameraModel``; it decides where to look, not where the points are). ``views``: from
-    ``make_views(camera)`` to reuse for several images. ``mask``: optional bool (H, W), True
-    where the image may be used. ``region``: the image's ``ImageRegion`` if already found (default:
-    ``find_image_region(image)``); no point outside its mask is used, so the boundary of an
-    image circle or of black borders is never a curve. ``options``: see ``DEFAULTS`` (e.g. ``tolerance_px``,
-    ``min_length_px``). Longest first."""
+def _options(options) -> dict:
     unknown = set(options) - set(DEFAULTS)
     if unknown:
         raise TypeError(f"unknown option(s): {', '.join(sorted(unknown))}; allowed: {', '.join(DEFAULTS)}")
     opts = dict(DEFAULTS)
     opts.update(options)
+    return opts
+
+
+def find_edges(image, camera: CameraModel, views: Optional[ViewSet] = None, mask: Optional[np.ndarray] = None,
+               region: Optional[ImageRegion] = None, **options) -> EdgePoints:
+    """Steps 1-3 of the module docstring: the sub-pixel edge points of the LSD segments of the
+    views of ``camera`` (arguments as ``detect_curves``)."""
+    opts = _options(options)
     grey = _as_grey(image)
     h, w = grey.shape
     if (w, h) != (camera.width, camera.height):
@@ -801,14 +814,46 @@ def detect_curves(image, camera: CameraModel, image_id: ImageId = None, views: O
         if mask.shape != grey.shape:
             raise ValueError(f'mask must have shape {grey.shape}, got {mask.shape}')
         usable &= mask
+    edges = EdgePoints((w, h), [], opts)
     if not usable.any() or float(grey.std()) < 1.0:
-        return []
+        return edges
     smooth = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), opts['smooth_sigma'])
-    pieces = _pieces(camera, views, grey, smooth, usable, opts)
+    for view in views.views:
+        points = _view_points(view, camera, grey, smooth, usable, opts)
+        if len(points[0]):
+            edges.per_view.append((view.index, points))
+    return edges
+
+
+def curves_from_edges(edges: EdgePoints, camera: CameraModel, image_id: ImageId = None) -> List[Curve]:
+    """Steps 4-5 of the module docstring: the curves that ``edges``' points make under ``camera``
+    (pieces straight under it, merged), longest first. ``camera``: the one the edges were found
+    with, or a better estimate of the same camera (a second round reuses the first's edges)."""
+    if (camera.width, camera.height) != tuple(edges.image_size):
+        raise ValueError(f'edges are of a {edges.image_size[0]}x{edges.image_size[1]} image but the camera is '
+                         f'{camera.width}x{camera.height}')
+    opts = edges.options
+    pieces = _pieces(camera, edges, opts)
     clusters = _merge(camera, pieces, opts)
     curves = [c for c in (_finish(camera, cl, image_id, opts) for cl in clusters) if c is not None]
     curves.sort(key=lambda c: -c.length_px)
     return curves[:opts['max_curves']]
+
+
+def detect_curves(image, camera: CameraModel, image_id: ImageId = None, views: Optional[ViewSet] = None,
+                  mask: Optional[np.ndarray] = None, region: Optional[ImageRegion] = None,
+                  **options) -> List[Curve]:
+    """Curves of raw pixels that image one straight 3-D line each (module docstring).
+
+    ``image``: (H, W) grey or (H, W, 3) BGR, the camera's size. ``camera``: the current estimate
+    (any ``CameraModel``; it decides where to look, not where the points are). ``views``: from
+    ``make_views(camera)`` to reuse for several images. ``mask``: optional bool (H, W), True
+    where the image may be used. ``region``: the image's ``ImageRegion`` if already found (default:
+    ``find_image_region(image)``); no point outside its mask is used, so the boundary of an
+    image circle or of black borders is never a curve. ``options``: see ``DEFAULTS`` (e.g. ``tolerance_px``,
+    ``min_length_px``). Longest first. The same as ``curves_from_edges(find_edges(...), camera)``."""
+    edges = find_edges(image, camera, views=views, mask=mask, region=region, **options)
+    return curves_from_edges(edges, camera, image_id)
 
 
 def draw_curves(image, used: Sequence[Curve] = (), rejected: Sequence[Curve] = (), thickness: int = 1,

@@ -97,19 +97,30 @@ def static_curves(curves: Sequence, images) -> np.ndarray:
     if len(keys) < 2 or n == 0:
         return static
     gradients = {key: _gradients(images[key]) for key in keys}
+    # every curve's points and normals in one array, each image sampled once along all of them
+    # (the per-point sampling is the same as curve by curve)
+    usable, points, normals = [], [], []
+    for i, curve in enumerate(curves):
+        p = np.asarray(curve_points(curve), dtype=float)
+        p = p[np.all(np.isfinite(p), axis=1)]
+        if len(p) >= 3:
+            usable.append(i)
+            points.append(p)
+            normals.append(_normals(p))
     found_in = np.zeros(n, dtype=int)
-    for i, (curve, key) in enumerate(zip(curves, ids)):
-        points = np.asarray(curve_points(curve), dtype=float)
-        points = points[np.all(np.isfinite(points), axis=1)]
-        if len(points) < 3:
-            continue
-        normals = _normals(points)
-        own = _across(gradients[key], points, normals)
+    if not usable:
+        return static
+    sizes = [len(p) for p in points]
+    bounds = np.cumsum([0] + sizes)
+    points, normals = np.concatenate(points), np.concatenate(normals)
+    across = {key: _across(gradients[key], points, normals) for key in keys}
+    for j, i in enumerate(usable):
+        part = slice(bounds[j], bounds[j + 1])
+        key = ids[i]
+        own = across[key][part]
         for other in keys:
-            if other != key:
-                there = _across(gradients[other], points, normals)
-                if same_edge_share(own, there) >= MATCH_FRACTION:
-                    found_in[i] += 1
+            if other != key and same_edge_share(own, across[other][part]) >= MATCH_FRACTION:
+                found_in[i] += 1
     needed = max(1, math.ceil(MIN_SHARE * (len(keys) - 1)))
     static = found_in >= needed
     if static.mean() > STILL_CAMERA_SHARE:
