@@ -468,3 +468,21 @@ def test_detect_curves_is_find_edges_then_curves_from_edges(room, kb_views):
         assert a.image == b.image == 3
     with pytest.raises(ValueError, match='edges are of a'):
         curves_from_edges(edges, camera.scaled(camera.width // 2, camera.height // 2))
+
+
+def test_nearest_distances_are_the_same_by_tree_as_by_brute_force():
+    """Merging asks, where two pieces overlap, how far each point of one is from the other's
+    nearest point; large pairs go to a k-d tree, small ones to brute force: the distances (and so
+    the merge decisions) must not depend on which, nor on the order of the points."""
+    from zeroshot_calib_ros.core.lines import detect as detect_module
+    rng = np.random.default_rng(3)
+    mine = rng.uniform(0, 200, (300, 2))
+    theirs = np.cumsum(rng.uniform(0, 1.5, (400, 2)), axis=0)  # a curve-like walk
+    truth = np.array([np.min(np.hypot(*(theirs - p).T)) for p in mine])
+    assert len(mine) * len(theirs) > detect_module.NEAREST_BRUTE_PAIRS  # the tree path
+    np.testing.assert_allclose(detect_module._nearest_distances(mine, theirs), truth, rtol=0, atol=1e-12)
+    small = detect_module._nearest_distances(mine[:5], theirs[:20])  # the brute-force path
+    np.testing.assert_allclose(small, [np.min(np.hypot(*(theirs[:20] - p).T)) for p in mine[:5]], atol=1e-12)
+    shuffled = rng.permutation(len(theirs))
+    np.testing.assert_array_equal(detect_module._nearest_distances(mine, theirs[shuffled]),
+                                  detect_module._nearest_distances(mine, theirs))

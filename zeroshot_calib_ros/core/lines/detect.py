@@ -614,6 +614,19 @@ def _rms(x):
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else math.inf
 
 
+NEAREST_BRUTE_PAIRS = 4096
+"""Below this many point pairs the nearest distances are found by brute force (a k-d tree's
+construction costs more than it saves); above, by a k-d tree. Both give the same distances."""
+
+
+def _nearest_distances(mine: np.ndarray, theirs: np.ndarray) -> np.ndarray:
+    """The distance of each point of ``mine`` to its nearest point of ``theirs``."""
+    if len(mine) * len(theirs) <= NEAREST_BRUTE_PAIRS:
+        return np.sqrt(np.min(np.sum((mine[:, None, :] - theirs[None, :, :]) ** 2, axis=2), axis=1))
+    from scipy.spatial import cKDTree  # scipy is a core dependency; imported where a tree pays
+    return cKDTree(theirs).query(mine)[0]
+
+
 def _try_merge(cl: _Cluster, piece: _Piece, opts):
     """(local RMS, joint normal) when ``piece`` continues or duplicates ``cl``, else None."""
     phi = cl.angles(piece.rays)
@@ -625,8 +638,7 @@ def _try_merge(cl: _Cluster, piece: _Piece, opts):
         theirs = cl.points[(cl.phi >= lo) & (cl.phi <= hi)]
         if len(mine) == 0 or len(theirs) == 0:
             return None
-        d = np.sqrt(np.min(np.sum((mine[:, None, :] - theirs[None, :, :]) ** 2, axis=2), axis=1))
-        local = float(np.median(d))
+        local = float(np.median(_nearest_distances(mine, theirs)))
         if local > opts['duplicate_px']:
             return None
         if phi.min() >= cl.phi[0] and phi.max() <= cl.phi[-1]:
