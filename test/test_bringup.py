@@ -86,7 +86,8 @@ def test_params_file_in_a_namespace_as_launch_ros_starts_it(peer, start_node, tm
 
 
 def test_old_root_namespace_key_is_gone():
-    for path in [*PARAMS_FILES, REPO / 'README.md', REPO / 'launch' / 'zeroshot_calib.launch.py']:
+    from doc_pages import PAGES
+    for path in [*PARAMS_FILES, *(REPO / name for name in PAGES), *sorted((REPO / 'launch').glob('*.launch.py'))]:
         text = path.read_text()
         assert '\nzeroshot_calib:\n' not in text and '(zeroshot_calib: ros__parameters)' not in text, path
 
