@@ -171,6 +171,9 @@ def test_the_readme_refine_quick_start_finds_the_principal_point_and_cuts_the_er
     (fu, fv, cu, cv), _ = _kalibr()
     assert math.hypot(refined.K[0, 2] - cu, refined.K[1, 2] - cv) < 3.0
     assert math.hypot(376 - cu, 240 - cv) > 14  # zero-shot's principal point, the image centre
+    quoted = re.search(r"image centre \((\d+), (\d+)\) to within 3 px of Kalibr's \(([\d.]+), ([\d.]+)\)",
+                       ' '.join(README.split())).groups()
+    assert [float(x) for x in quoted] == [376, 240, round(cu, 2), round(cv, 2)]
     truth = {c.name: c for c in real_photos.load_cameras()}['mynteye_s_jpl_left']
     rays, pixels = real_photos.trusted_pixels(truth)
     scale = lp.REFERENCE_WIDTH / truth.width

@@ -887,6 +887,9 @@ def test_performance_figures_are_the_results_files():
     assert round(max(float(r[7].split('/')[0]) for r in maps.values()), 3) == 0.022
     assert _agrees('6.0', float(maps['1920x1080'][4])) and _agrees('5.9', float(maps['1920x1080'][5]))
     assert _agrees('56', float(maps['1920x1080'][6]))
+    # "about 9 times cheaper than cv2.fisheye.undistortImage"
+    assert round(float(maps['1920x1080'][6]) / float(maps['1920x1080'][4])) == 9 and 'about 9 times cheaper' in \
+        ' '.join(section.split())
     startup = {(r[0], r[1]): r for r in markdown_rows((RESULTS / 'startup_and_memory.md').read_text()) if len(r) == 11}
     hd, uhd = startup[('1920x1080', 'node')], startup[('3840x2160', 'node')]
     assert _agrees('1.3', float(hd[2])) and _agrees('1.6', float(uhd[2]))          # start-up

@@ -302,3 +302,14 @@ def test_the_venv_python_imports_the_library_after_sourcing_the_install_tree(tmp
     printed, where = done.stdout.strip().splitlines()
     assert printed == expected
     assert where.startswith(str(REPO / 'install' / 'zeroshot_calib_ros' / 'lib'))
+
+
+def test_make_echo_defaults_are_ros_mds():
+    """ros.md: `make echo` prints /camera_info (where `make run` publishes) once, waiting "up to 10 s
+    (`ECHO_ARGS='--timeout S'`) for each CameraInfo"; a count or timeout it cannot use is one
+    line and status 2."""
+    from zeroshot_calib_ros.ros.echo import build_parser, main
+    args = build_parser().parse_args([])
+    assert (args.topic, args.count, args.timeout) == ('/camera_info', 1, 10.0)
+    assert '`make echo` waits up to 10 s' in ' '.join(ROS_DOC.split())
+    assert main(['--count', '0']) == 2 and main(['--timeout', '-1']) == 2
