@@ -3,6 +3,7 @@
 #   make test    # create .venv (ROS 2 Jazzy from PyPI wheels + colcon),
 #                # colcon-build this package into build/ install/, run pytest
 #   make run     # start the installed node with config/hero9_w1.yaml
+#   make echo    # print the CameraInfo it publishes (in another terminal)
 #
 # No system ROS installation and no sourcing of setup files are needed: the
 # recipes set PYTHONPATH / AMENT_PREFIX_PATH for the install tree themselves.
@@ -24,6 +25,8 @@ BSTAMP    := $(TOP)/build/.make-build.stamp
 PYTEST_ARGS ?=
 PARAMS    ?= $(TOP)/config/hero9_w1.yaml
 ARGS      ?=
+TOPIC     ?= /camera_info
+ECHO_ARGS ?=
 
 # --- environment of every ROS process started from here ------------------
 # (each only if the caller has not set it already)
@@ -48,7 +51,7 @@ SOURCES := $(addprefix $(TOP)/,setup.py setup.cfg package.xml) \
 	$(shell cd $(TOP) && find zeroshot_calib_ros config launch resource -type f \
 		! -name '*.pyc' ! -path '*/__pycache__/*' 2>/dev/null | sed 's|^|$(TOP)/|')
 
-.PHONY: all venv build test test-ros test-jazzy-libs run clean distclean mutation
+.PHONY: all venv build test test-ros test-jazzy-libs run echo clean distclean mutation
 all: build
 
 venv: $(VSTAMP)
@@ -103,6 +106,12 @@ test-jazzy-libs: $(LSTAMP)
 # `ros2 run zeroshot_calib_ros node --ros-args --params-file PARAMS ARGS` does with a system ROS.
 run: $(BSTAMP)
 	cd $(TOP) && $(ROS_ENV) $(PREFIX)/lib/$(PKG)/node --ros-args --params-file $(PARAMS) $(ARGS)
+
+# `make echo [TOPIC=/front/camera_info] [ECHO_ARGS='--count 3 --timeout 20']`: the CameraInfo a
+# running node (make run, in another terminal) publishes, printed as `ros2 topic echo` prints it,
+# with rclpy from .venv and the DDS environment above (no system ROS needed).
+echo: $(BSTAMP)
+	@cd $(TOP) && $(ROS_ENV) $(VPY) -m $(PKG).ros.echo $(TOPIC) $(ECHO_ARGS)
 
 # `make mutation MUTATION_ARGS='--only ID[,ID] --out FILE'`: the curated deliberate bugs of
 # benchmarks/mutants.py, each applied alone to a copy of the repository and its tests run there

@@ -86,7 +86,8 @@ def test_params_file_in_a_namespace_as_launch_ros_starts_it(peer, start_node, tm
 
 
 def test_old_root_namespace_key_is_gone():
-    for path in [*PARAMS_FILES, REPO / 'README.md', REPO / 'launch' / 'zeroshot_calib.launch.py']:
+    from doc_pages import PAGES
+    for path in [*PARAMS_FILES, *(REPO / name for name in PAGES), *sorted((REPO / 'launch').glob('*.launch.py'))]:
         text = path.read_text()
         assert '\nzeroshot_calib:\n' not in text and '(zeroshot_calib: ros__parameters)' not in text, path
 
@@ -320,3 +321,63 @@ def test_ros2_launch_show_args_describes_every_argument(monkeypatch):
     assert set(described) == LAUNCH_ARGUMENTS
     assert all(text and not text.startswith('(default') for text in described.values()), described
     assert all(word in described['params_file'] for word in ('aspect ratio', 'WARN', 'diagnostics')), described
+
+
+def test_usb_cam_bringup_pairs_our_camera_info_with_the_drivers_frames(peer, start_node, tmp_path, monkeypatch,
+                                                                      domain_id):  # noqa: F811
+    """README quick start 1 (launch/usb_cam_bringup.launch.py), without usb_cam installed: both
+    Node actions of the bringup run with the command lines launch_ros builds from them, the
+    driver's executable replaced by test/fake_usb_cam.py (usb_cam's parameter names and topics,
+    its camera_info published uncalibrated on the fully qualified name image_transport gives it).
+    /camera/camera_info is ours alone, with our camera (the spec solved) and the header of each
+    driver frame; the driver's own camera_info and set_camera_info are under /camera/driver/;
+    /camera/image_rect comes rectified (rectify on by default)."""
+    from test_config import BRINGUP_FILE, evaluate_launch_nodes
+    arguments = {'width': '640', 'height': '360', 'hfov': '118', 'vfov': '69'}
+    driver, ours = evaluate_launch_nodes(monkeypatch, arguments, launch_file=BRINGUP_FILE)
+    (tmp_path / 'driver').mkdir()
+    (tmp_path / 'ours').mkdir()
+    env = ros_environment(domain_id)
+    fake = subprocess.Popen([sys.executable, str(REPO / 'test' / 'fake_usb_cam.py'),
+                             *launch_ros_command_line(tmp_path / 'driver', driver)],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+    try:
+        node = start_node(*launch_ros_command_line(tmp_path / 'ours', ours))
+        reliable = qos(ReliabilityPolicy.RELIABLE, depth=50)
+        infos = peer.collect(CameraInfo, '/camera/camera_info', reliable)
+        driver_infos = peer.collect(CameraInfo, '/camera/driver/camera_info', reliable)
+        frames = peer.collect(Image, '/camera/image_raw', reliable)
+        rects = peer.collect(Image, '/camera/image_rect', reliable)
+        peer.spin_until(lambda: len(rects) >= 3 and len(driver_infos) >= 3, timeout=30,
+                        what='/camera/image_rect and /camera/driver/camera_info')
+        publishers = peer.node.get_publishers_info_by_topic
+        peer.spin_until(lambda: [(i.node_name, i.node_namespace) for i in publishers('/camera/camera_info')]
+                        == [('zeroshot_calib', '/camera')], timeout=10, what='/camera/camera_info: ours alone')
+        assert [(i.node_name, i.node_namespace) for i in publishers('/camera/driver/camera_info')] == \
+            [('usb_cam', '/camera')]
+        expected = solve_zero_shot(CameraSpec(640, 360, hfov=118, vfov=69))
+        ours_received = [i for i in infos if i.header.stamp.sec or i.header.stamp.nanosec]
+        assert ours_received and all(i.k[0] == pytest.approx(expected.f, abs=1e-6) for i in ours_received)
+        assert all(i.distortion_model == 'equidistant' and (i.width, i.height) == (640, 360) for i in ours_received)
+        assert all(i.k[0] == 0 for i in driver_infos)  # the driver's, uncalibrated, stays aside
+
+        def paired():  # our CameraInfos with exactly the header of a driver frame
+            stamps = {(f.header.stamp.sec, f.header.stamp.nanosec, f.header.frame_id) for f in frames}
+            return [i for i in infos if (i.header.stamp.sec, i.header.stamp.nanosec, i.header.frame_id) in stamps]
+        peer.spin_until(lambda: len(paired()) >= 3, timeout=10, what='CameraInfos with the headers of driver frames')
+        assert all(i.header.frame_id == 'camera_optical_frame' and i.k[0] == pytest.approx(expected.f, abs=1e-6)
+                   for i in paired())
+        assert (rects[-1].width, rects[-1].height, rects[-1].encoding) == (640, 360, 'mono8')
+        services = {name for name, _ in peer.node.get_service_names_and_types_by_node('zeroshot_calib', '/camera')}
+        assert '/camera/set_camera_info' in services
+        peer.spin_until(lambda: '/camera/driver/set_camera_info' in {
+            name for name, _ in peer.node.get_service_names_and_types_by_node('usb_cam', '/camera')},
+            timeout=10, what="the driver's set_camera_info under /camera/driver/")
+        assert node.alive() and fake.poll() is None
+    finally:
+        fake.send_signal(signal.SIGINT)
+        try:
+            fake.wait(10)
+        except subprocess.TimeoutExpired:
+            fake.kill()
+            fake.wait()

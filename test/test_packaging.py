@@ -238,9 +238,9 @@ def test_launch_files_are_installed_under_share_launch():
     the move keeps its stale copy there: `ros2 launch` then finds two; remove install/ once)."""
     _require_install_tree()
     share = INSTALL / 'share' / PKG
-    assert (share / 'launch' / 'zeroshot_calib.launch.py').is_file(), sorted(
-        str(p.relative_to(share)) for p in share.rglob('*.launch.py'))
-    assert (ROOT / 'launch' / 'zeroshot_calib.launch.py').is_file()
+    for name in ('zeroshot_calib.launch.py', 'usb_cam_bringup.launch.py'):
+        assert (share / 'launch' / name).is_file(), sorted(str(p.relative_to(share)) for p in share.rglob('*.launch.py'))
+        assert (ROOT / 'launch' / name).is_file()
     assert not list((ROOT / 'config').glob('*.launch.py'))
 
 

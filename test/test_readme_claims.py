@@ -1,7 +1,8 @@
-"""README claims that no other test checked (issue 11; the map of every claim to its test is
-docs/readme_claims.md). Each test names the README sentence it checks and compares against an
-independent reference: OpenCV, a closed form written out here, the paper, the Makefile as make
-runs it, or (for the figures of the benchmark sections) the results files those figures come from.
+"""Claims of the README and the pages under docs/ that no other test checked (the map of every
+claim to its test is docs/readme_claims.md). Each test names the page and the sentence it checks
+("README:", "cli.md:", ...) and compares against an independent reference: OpenCV, a closed form
+written out here, the paper, the Makefile as make runs it, or (for benchmark figures) the results
+files those figures come from.
 
 ROS-free: the claims that need the node running are in test_readme_claims_ros.py.
 """
@@ -31,33 +32,12 @@ from zeroshot_calib_ros.core.ros_data.image_frames import ENCODINGS, default_map
 from zeroshot_calib_ros.core.ros_data.rectify import new_camera_matrix
 from zeroshot_calib_ros.core.zeroshot.solver import PROJECTION_CHOICES
 
-REPO = Path(__file__).resolve().parents[1]
-README = (REPO / 'README.md').read_text()
+from doc_pages import REPO, markdown_rows, page, section as doc_section
+
+README = page('README.md')
 RESULTS = REPO / 'benchmarks' / 'results'
 SHARED = REPO.parent / 'shared' / 'data' / 'ros_fisheye_800x503'
 TABLE2 = load_table2()
-
-
-def readme_section(title):
-    """The text of the README section whose heading starts with ``title`` (up to the next heading
-    of the same or a higher level)."""
-    match = re.search(rf'^(#+) {re.escape(title)}.*?$', README, re.M)
-    assert match, title
-    level = len(match.group(1))
-    rest = README[match.end():]
-    end = re.search(rf'^#{{1,{level}}} ', rest, re.M)
-    return rest[:end.start()] if end else rest
-
-
-def markdown_rows(text):
-    """Cells of every markdown table row in ``text`` (separator rows left out)."""
-    rows = []
-    for line in text.splitlines():
-        if line.startswith('|') and not re.fullmatch(r'\|[-:| ]+\|', line.strip()):
-            rows.append([c.strip() for c in line.strip().strip('|').split('|')])
-    return rows
-
-
 
 
 def solve_json(capsys, *args):
@@ -125,7 +105,7 @@ def make(*args, env_changes=None):
 
 
 def test_make_run_starts_the_installed_node_with_the_hero9_params_file_or_params_and_args():
-    """README: "`make run` ... then the node on a GoPro HERO9 (wide)", "`make run`  # = ros2 run ...
+    """README, ros.md: "`make run` ... then the node on a GoPro HERO9 (wide)", "`make run`  # = ros2 run ...
     node --ros-args --params-file config/hero9_w1.yaml", "`make run PARAMS=config/c922.yaml
     ARGS='-r __ns:=/front -p rectify:=true'`  # = ros2 run ... --params-file PARAMS ARGS", and the
     node "lives in `lib/zeroshot_calib_ros/`, where `ros2 run` looks". What make would run (-n)."""
@@ -145,7 +125,7 @@ PROBE = ('readme_probe:\n\t@echo "$$ROS_AUTOMATIC_DISCOVERY_RANGE $$FASTDDS_DEFA
 
 
 def test_make_keeps_dds_discovery_local_with_the_shm_profile_unless_the_variables_are_set():
-    """README: the Makefile "runs everything with DDS discovery kept on this machine
+    """development.md: the Makefile "runs everything with DDS discovery kept on this machine
     (`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`) and the shared-memory Fast DDS profile
     `config/fastdds_shm.xml` (set any of these variables yourself to override)". The environment
     a recipe gets, without and with the variables set by the caller."""
@@ -178,7 +158,7 @@ def read_ini(path):
 
 
 def test_solve_ini_file_is_camera_calibration_parsers_ini_and_rectify_reads_it(tmp_path, capsys):
-    """README: `--yaml FILE` writes "a camera_info_manager file (`.yaml` or `.ini`,
+    """cli.md: `--yaml FILE` writes "a camera_info_manager file (`.yaml` or `.ini`,
     camera_calibration_parsers' formats)", and `rectify --calibration` "takes a
     camera_calibration_parsers file (YAML or `.ini`)". The INI read by hand has the JSON's K, D, P;
     rectified with it, a textured image is what cv2.initUndistortRectifyMap + cv2.remap make of
@@ -212,7 +192,7 @@ def test_solve_ini_file_is_camera_calibration_parsers_ini_and_rectify_reads_it(t
 
 
 def test_batch_header_with_circle_columns_gives_the_closed_form_circular_fisheye(tmp_path, capsys):
-    """README: batch "columns `name,width,height,hfov,vfov,dfov[,circle_diameter,circle_fov]`, any
+    """cli.md: batch "columns `name,width,height,hfov,vfov,dfov[,circle_diameter,circle_fov]`, any
     order". A circular fisheye row (image circle 1000 px across 200 degrees, r = f theta): f =
     500 / (100 degrees in radians), as `solve --circle-diameter 1000 --circle-fov 200` gives it."""
     path = tmp_path / 'cams.csv'
@@ -230,7 +210,7 @@ def test_batch_header_with_circle_columns_gives_the_closed_form_circular_fisheye
 
 
 def test_presets_hold_every_family_the_readme_names_each_with_its_source(capsys):
-    """README: presets are "published spec sheets (the paper's cameras, Logitech, Raspberry Pi camera
+    """cli.md: presets are "published spec sheets (the paper's cameras, Logitech, Raspberry Pi camera
     modules, RealSense colour cameras, Luxonis OAK and Stereolabs ZED cameras), each with its source
     and the FOVs it gives, in `zeroshot_calib_ros/data/camera_presets.csv`"."""
     status, out, _ = run_main(['presets', '--json'], capsys)
@@ -257,15 +237,15 @@ def _subcommand_choices(command, dest):
 
 
 def test_the_model_choices_are_the_readmes_for_solve_rectify_and_the_node():
-    """README: "Options shared by `solve` and `rectify`: `--model auto|equidistant|equisolid|
+    """cli.md: "Options shared by `solve` and `rectify`: `--model auto|equidistant|equisolid|
     stereographic|orthographic|wide|wide-equidistant|wide-equisolid|wide-stereographic`" and the
     node's `projection` row lists the same nine."""
-    shared = readme_section('Command line')
+    shared = doc_section('docs/cli.md', 'Options shared')
     listed = re.search(r'`--model ([a-z|-]+)`', shared).group(1).split('|')
     assert len(listed) == 9
     assert _subcommand_choices('solve', 'model') == listed
     assert _subcommand_choices('rectify', 'model') == listed
-    row = next(r for r in markdown_rows(readme_section('Parameters')) if r[0] == '`projection`')
+    row = next(r for r in markdown_rows(doc_section('docs/ros.md', 'Parameters')) if r[0] == '`projection`')
     assert re.findall(r'`([a-z-]+)`', row[3]) == listed
     assert list(PROJECTION_CHOICES) == listed  # what the node validates `projection` against
 
@@ -288,7 +268,7 @@ def test_every_model_choice_solves_as_that_model(capsys, tmp_path):
 
 
 def test_calibrate_prints_the_fit_warning_as_solve_does(tmp_path, capsys):
-    """README: "When the fitted ROS model is off by more than 0.5 px anywhere in the image, `solve`
+    """cli.md: "When the fitted ROS model is off by more than 0.5 px anywhere in the image, `solve`
     and `calibrate` print one warning line on stderr and put it in the JSON's `warning`". A ~135
     degree lens calibrated from corners, written as plumb_bob: its D through cv2.projectPoints
     misses the calibrated camera by more than 0.5 px (checked here), and the warning says so;
@@ -325,7 +305,7 @@ def test_calibrate_prints_the_fit_warning_as_solve_does(tmp_path, capsys):
 # -- library ------------------------------------------------------------------------------------
 
 def test_the_four_fisheye_laws_are_the_papers_eqs_13_to_16_one_class_each():
-    """README: "the four fisheye laws of the paper (eqs. 13-16) are one small class each in
+    """library.md: "the four fisheye laws of the paper (eqs. 13-16) are one small class each in
     `core/lens/projections.py`": r / f = 2 tan(theta/2) (stereographic, eq. 13), theta (equidistant,
     eq. 14), 2 sin(theta/2) (equisolid, eq. 15), sin(theta) (orthographic, eq. 16); and G_w
     (eq. 18) = rho(arctan(w r_u)) / w."""
@@ -354,7 +334,7 @@ def _unit_rays(n=400, max_deg=75.0, seed=0):
 
 
 def test_camera_models_share_project_and_unproject_to_unit_rays():
-    """README: "Camera models share one interface (`project` rays to pixels, `unproject` pixels to
+    """library.md: "Camera models share one interface (`project` rays to pixels, `unproject` pixels to
     unit rays): `ZeroShotCamera` (the paper's exact model), `KannalaBrandtCamera` (ROS
     `equidistant`), `PlumbBobCamera`, `PinholeCamera`, `WideFovCamera` (past 180 degrees), all in
     `core/lens/`". References: cv2.fisheye.projectPoints, cv2.projectPoints (with and without
@@ -401,7 +381,7 @@ def test_camera_models_share_project_and_unproject_to_unit_rays():
 @pytest.mark.parametrize('law', ['equidistant', 'equisolid', 'stereographic'])
 @pytest.mark.parametrize('a', [0.8, 1.0, 1.3])
 def test_wide_model_is_the_papers_camera_below_90_degrees_and_its_law_up_to_180(law, a):
-    """README: `core/lens/wide_fov.py` "writes the same lens law in angle space (`r_d = f rho(psi) / a`,
+    """solver.md: `core/lens/wide_fov.py` "writes the same lens law in angle space (`r_d = f rho(psi) / a`,
     `psi = atan2(a sin theta, cos theta)`, `a = w f`): identical to the paper's camera below 90
     degrees, continued smoothly to 180 degrees". The closed form written out here, and the
     paper's ZeroShotCamera of the same f, w and law."""
@@ -421,7 +401,7 @@ def test_wide_model_is_the_papers_camera_below_90_degrees_and_its_law_up_to_180(
 
 
 def test_balance_1_of_a_200_degree_lens_shows_80_degrees_off_axis():
-    """README: "rectification of a lens wider than a pinhole can show keeps up to 80 degrees
+    """solver.md: "rectification of a lens wider than a pinhole can show keeps up to 80 degrees
     off-axis at `balance: 1`". A 200-degree equidistant lens on 1920 x 1080 (its side edges
     100 degrees off-axis): the rectified camera of balance 1 reaches the image's side edges at
     atan((W/2) / fx) = 80 degrees, and a textured image rectified with it has its central 80
@@ -456,7 +436,7 @@ TABLE2_PAIRS = [r for r in TABLE2 if r['vfov']]
 
 @pytest.mark.parametrize('name', list(RHO_MAX))
 def test_j_stable_rises_monotonically_and_the_solver_returns_its_one_root(name):
-    """README: "`J_stable(w) = tan(vfov/2)/tan(hfov/2) - G_w^-1(H/2)/G_w^-1(W/2)` (eq. 27, for any
+    """solver.md: "`J_stable(w) = tan(vfov/2)/tan(hfov/2) - G_w^-1(H/2)/G_w^-1(W/2)` (eq. 27, for any
     pair of FOVs and any projection) rises monotonically on `(0, rho_max/(W/2))`, so a
     barrel-distorted spec has exactly one root; Brent's method brackets it to machine precision
     (both FOVs give the same focal length to 1e-12)". J from the closed forms, on every Table 2
@@ -500,7 +480,7 @@ def _paper_newton(W, H, hfov, vfov, w0=1e-4, gamma=0.1, tol=1e-12):
 
 
 def test_newton_is_the_papers_iteration_and_has_no_start_beyond_31416_px(capsys):
-    """README: "The paper's damped Newton iteration (`w0 = 1e-4`, `gamma = 0.1`) is available as
+    """solver.md: "The paper's damped Newton iteration (`w0 = 1e-4`, `gamma = 0.1`) is available as
     `method='newton'` / `--method newton`; it agrees to 1e-10 on every Table 2 camera (in ~230
     iterations), and has no valid start for images wider than pi/1e-4 = 31416 px"."""
     for row in [r for r in TABLE2 if r['omega']]:
@@ -524,7 +504,7 @@ def _predicted_dfov(name, W, H, f, w):
 
 
 def test_solve_reports_every_projections_dfov_residual_and_chooses_the_closest(capsys):
-    """README: "with all three the projection whose predicted dfov is closest is chosen and every
+    """solver.md: "with all three the projection whose predicted dfov is closest is chosen and every
     projection's residual is reported; `--model` / `projection` forces one". The HERO9 W1 with a
     spec-sheet dfov of 133.0: each law's residual is its h+v camera's diagonal (closed form) minus
     133.0, in the JSON and on the text lines, and the smallest one is the model chosen."""
@@ -547,7 +527,7 @@ def test_solve_reports_every_projections_dfov_residual_and_chooses_the_closest(c
 
 
 def test_default_balance_is_0_no_black_border(tmp_path, capsys):
-    """README: "default `balance = 0` (no black border)", `balance` meaning what
+    """solver.md: "default `balance = 0` (no black border)", `balance` meaning what
     cv2.fisheye.estimateNewCameraMatrixForUndistortRectify makes it mean. `solve`'s P without
     --balance is OpenCV's for balance 0, and `rectify` without --balance of an image with no
     black pixel gives an image without one (at balance 1 there are black corners)."""
@@ -571,7 +551,7 @@ def test_default_balance_is_0_no_black_border(tmp_path, capsys):
 # -- for ROS users: parameters and topics, as far as they are ROS-free --------------------------
 
 def test_interpolation_values_are_image_procs():
-    """README (Parameters): `interpolation` "0 nearest, 1 linear, 2 cubic, 4 lanczos4 (image_proc's
+    """ros.md (Parameters): `interpolation` "0 nearest, 1 linear, 2 cubic, 4 lanczos4 (image_proc's
     values)", i.e. OpenCV's INTER_* codes. Rectified with each, a random image is cv2.remap of it
     with that OpenCV interpolation on the same maps; 3 (INTER_AREA: no remap) is refused."""
     camera = solve_zero_shot(CameraSpec(160, 90, 118, 69)).camera
@@ -590,11 +570,11 @@ def test_interpolation_values_are_image_procs():
 
 
 def test_readme_encodings_are_the_ones_rectified():
-    """README (Topics): `image_rect` has "same header and encoding as the input: mono8, mono16,
+    """ros.md (Topics): `image_rect` has "same header and encoding as the input: mono8, mono16,
     rgb8, bgr8, rgba8, bgra8, rgb16, bgr16, 8UC1, 8UC3, 8UC4, 16UC1, 16UC3, 32FC1". Each is one
     the node decodes (test_rectify.py compares every one with cv2.remap channel by channel),
     with its OpenCV depth and channel count."""
-    listed = re.search(r'same header and encoding as the input: ([^(]+?) \(', README).group(1).split(', ')
+    listed = re.search(r'same header and encoding as the input: ([^(]+?) \(', page('docs/ros.md')).group(1).split(', ')
     assert sorted(listed) == sorted(ENCODINGS)
     for encoding in listed:
         dtype, channels = ENCODINGS[encoding]
@@ -614,7 +594,7 @@ def _mem_total_bytes():
 
 
 def test_maps_take_at_most_8_bytes_a_pixel_and_the_default_budget_is_an_eighth_of_memory():
-    """README (Parameters): `max_map_memory_mb` "0 = an eighth of the machine's memory", "memory
+    """ros.md (Parameters): `max_map_memory_mb` "0 = an eighth of the machine's memory", "memory
     budget of the rectification maps (at most 8 bytes a pixel)". The maps a Rectifier holds in
     each format (float: 8 bytes, fixed: 6), against the budget's count, and /proc/meminfo."""
     for w, h in ((1920, 1080), (333, 187)):
@@ -630,7 +610,7 @@ def test_maps_take_at_most_8_bytes_a_pixel_and_the_default_budget_is_an_eighth_o
 
 
 def test_maps_of_another_frame_size_are_built_on_a_low_priority_worker_thread():
-    """README (Topics): "with `rectify` on, their maps are built on a low-priority worker thread
+    """ros.md (Topics): "with `rectify` on, their maps are built on a low-priority worker thread
     while the configured size keeps flowing". The node's MapBuilder, given a new frame size:
     the maps are built on another thread, whose nice value (os.getpriority of that thread) is
     10 or more, above this thread's; the configured size's calibration is served meanwhile."""
@@ -663,7 +643,7 @@ def test_maps_of_another_frame_size_are_built_on_a_low_priority_worker_thread():
 # -- chaining with image_proc -------------------------------------------------------------------
 
 def test_all_zero_fit_is_published_as_1e_20_which_keeps_rectifying_and_moves_no_pixel():
-    """README: "When the fit of a distorting lens comes out exactly zero, the node publishes
+    """ros.md: "When the fit of a distorting lens comes out exactly zero, the node publishes
     `1e-20` as the last coefficient instead, which keeps downstream rectifying and moves no pixel
     (exactly 0 px in OpenCV's double arithmetic ...)." A pure equidistant lens (r = f theta: k1..k4 = 0): its calibration
     carries D = (0, 0, 0, 1e-20); image_geometry's rule (any non-zero coefficient: rectify) holds
@@ -691,7 +671,7 @@ def test_all_zero_fit_is_published_as_1e_20_which_keeps_rectifying_and_moves_no_
 
 
 def test_camera_info_model_agrees_with_cv2_to_1e_9_px():
-    """README: CameraInfoModel is "checked against cv2 / cv2.fisheye to 1e-9 px" (plumb_bob,
+    """library.md: CameraInfoModel is "checked against cv2 / cv2.fisheye to 1e-9 px" (plumb_bob,
     rational_polynomial, equidistant; and the HERO9 calibration): rectify_points and
     unrectify_points against pixel pairs made with cv2(.fisheye).projectPoints."""
     from test_camera_info_model import (DISTORTIONS, K_PIN, P_NEW, R_STEREO, H as HP, W as WP, camera_info,
@@ -709,7 +689,7 @@ def test_camera_info_model_agrees_with_cv2_to_1e_9_px():
 
 
 def test_pythons_image_geometry_reading_of_the_hero9_is_off_by_78_px_median_354_max():
-    """README: Python's PinholeCameraModel "reads the four `equidistant` coefficients as plumb_bob:
+    """library.md, ros.md: Python's PinholeCameraModel "reads the four `equidistant` coefficients as plumb_bob:
     for the HERO9 wide calibration its `rectifyPoint` is off by a median 78 px (max 354 px)".
     What it computes (cv2.undistortPoints with K, D, R, P), against the true rectified pixels
     (rays through cv2.fisheye.projectPoints) of the sample test_camera_info_model.py prints."""
@@ -725,12 +705,12 @@ def test_pythons_image_geometry_reading_of_the_hero9_is_off_by_78_px_median_354_
 # -- accuracy against the paper (Table 2) -------------------------------------------------------
 
 def test_readme_table2_is_the_benchmark_output_and_opencv_measures_its_last_column():
-    """README: "`.venv/bin/python benchmarks/paper_table2.py` prints our solution beside the paper's
+    """accuracy.md: "`.venv/bin/python benchmarks/paper_table2.py` prints our solution beside the paper's
     printed one" (the table), its paper columns are the paper's Table 2 (test/data/paper_table2.csv),
     and "The last column is how far OpenCV's fisheye model with our `K, D` departs from the exact
     model anywhere in the image (checked < 0.01 px with `cv2.fisheye.projectPoints`)": measured
     here with cv2.fisheye.projectPoints on every row, not just the fisheye ones."""
-    table = readme_section('Accuracy against the paper')
+    table = doc_section('docs/accuracy.md', 'Against the paper')
     rows = markdown_rows(table)[1:]
     env = dict(os.environ, PYTHONPATH=str(REPO))
     printed = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'paper_table2.py')], capture_output=True,
@@ -767,7 +747,7 @@ def _fit_error_px(cell: str) -> float:
 
 
 def test_c922_eq7_value_is_what_vfov_43_3_gives():
-    """README: "eq. 7 prints vfov 43.4 though its value 906.9431 is what 43.3 gives": (H/2) /
+    """accuracy.md: "eq. 7 prints vfov 43.4 though its value 906.9431 is what 43.3 gives": (H/2) /
     tan(vfov/2) at 720 px; the C922 preset (and Table 2) use 43.3."""
     assert 360 / math.tan(math.radians(43.3) / 2) == pytest.approx(906.9431, abs=5e-5)
     assert abs(360 / math.tan(math.radians(43.4) / 2) - 906.9431) > 2
@@ -779,7 +759,7 @@ def test_c922_eq7_value_is_what_vfov_43_3_gives():
 
 @pytest.mark.skipif(not SHARED.is_dir(), reason=f'{SHARED} is missing (the shared real data set)')
 def test_shared_set_full_calibration_focal_is_within_0_4_percent_of_the_authors():
-    """README: "Full calibration in our model reaches 0.59 px, ... its focal length is within 0.4 %
+    """accuracy.md: "Full calibration in our model reaches 0.59 px, ... its focal length is within 0.4 %
     of the authors' `ost.yaml`" (both fx and fy of ost.yaml)."""
     import yaml
     from zeroshot_calib_ros.core.checkerboard.calibration import calibrate
@@ -805,10 +785,10 @@ def _agrees(readme_cell, value):
 
 
 def test_lens_profile_figures_are_the_results_file():
-    """README "Accuracy you can expect, by camera class": the table and the counts are those of
+    """accuracy.md "Accuracy you can expect, by camera class": the table and the counts are those of
     `benchmarks/results/lens_profiles.md` (made by benchmarks/lens_profiles.py) and its failures
     file."""
-    section = readme_section('Accuracy you can expect')
+    section = doc_section('docs/accuracy.md', 'Accuracy you can expect')
     results = (RESULTS / 'lens_profiles.md').read_text()
     rows = markdown_rows(results)
     by_key = {(r[0], r[2]): r for r in rows if len(r) == 13}
@@ -863,7 +843,7 @@ def test_lens_profile_figures_are_the_results_file():
     for name in ('paper ZS', 'ours auto', 'd only', 'h only', 'v only', 'circle'):
         assert _number(by_key[('all', name)][11]) >= 80, name
     source = re.search(r'(\d+) profiles; (\d+) usable, (\d+) excluded', results).groups()
-    assert ('4,913' in section and '4,621' in README and '292 profiles' in section and
+    assert ('4,913' in section and '4,621' in section and '292 profiles' in section and
             source == ('4913', '4621', '292'))
     with open(RESULTS / 'lens_profiles_failures.csv', newline='') as f:
         failures = list(csv.DictReader(f))
@@ -876,13 +856,13 @@ def test_lens_profile_figures_are_the_results_file():
 
 
 def test_performance_figures_are_the_results_files():
-    """README "Performance": the throughput table and the sentences under it are
+    """performance.md, "The message path": the throughput table and the sentences under it are
     `benchmarks/results/rectify_throughput.md` (benchmarks/rectify_throughput.py and
-    startup_and_memory.py), the soak figures `benchmarks/results/soak.md` (benchmarks/soak.py)."""
-    section = readme_section('Performance')
+    startup_and_memory.py); "Soak": `benchmarks/results/soak.md` (benchmarks/soak.py)."""
+    section = doc_section('docs/performance.md', 'The message path') + doc_section('docs/performance.md', 'Soak')
     results = (RESULTS / 'rectify_throughput.md').read_text()
     by_frame = {(r[0], r[1]): r for r in markdown_rows(results) if len(r) == 15}
-    readme_rows = markdown_rows(section.split('### Serialized frame path')[0])[1:]
+    readme_rows = markdown_rows(section)[1:]
     assert len(readme_rows) == 6
     columns = {2: 2, 3: 3, 4: 4, 5: 6, 6: 8, 7: 9, 8: 10}  # README column -> results column
     for cells in readme_rows:
@@ -907,6 +887,9 @@ def test_performance_figures_are_the_results_files():
     assert round(max(float(r[7].split('/')[0]) for r in maps.values()), 3) == 0.022
     assert _agrees('6.0', float(maps['1920x1080'][4])) and _agrees('5.9', float(maps['1920x1080'][5]))
     assert _agrees('56', float(maps['1920x1080'][6]))
+    # "about 9 times cheaper than cv2.fisheye.undistortImage"
+    assert round(float(maps['1920x1080'][6]) / float(maps['1920x1080'][4])) == 9 and 'about 9 times cheaper' in \
+        ' '.join(section.split())
     startup = {(r[0], r[1]): r for r in markdown_rows((RESULTS / 'startup_and_memory.md').read_text()) if len(r) == 11}
     hd, uhd = startup[('1920x1080', 'node')], startup[('3840x2160', 'node')]
     assert _agrees('1.3', float(hd[2])) and _agrees('1.6', float(uhd[2]))          # start-up
@@ -926,9 +909,9 @@ def test_performance_figures_are_the_results_files():
 
 
 def test_refine_node_figures_are_the_results_file():
-    """README "Refining while streaming": the frames lost with refine on and off and the times to the
+    """ros.md "Refining while streaming": the frames lost with refine on and off and the times to the
     refined CameraInfo are `benchmarks/results/refine_node.md` (benchmarks/refine_node.py)."""
-    text = ' '.join(readme_section('Refining while streaming').split())
+    text = ' '.join(doc_section('docs/ros.md', 'Refining while streaming').split())
     results = (RESULTS / 'refine_node.md').read_text()
     lost = re.search(r'Total image_rect lost: off (\d+) of (\d+), on (\d+) of (\d+)', results).groups()
     off, sent_off, on, sent_on = (int(x) for x in lost)
@@ -942,10 +925,10 @@ def test_refine_node_figures_are_the_results_file():
 
 
 def test_three_channel_padding_figures_are_the_remap_kernels_results():
-    """README "How the solver works" (Rectification): the 1080p bgr8 figures are OpenCV 5.0's rows
+    """solver.md "How the solver works" (Rectification): the 1080p bgr8 figures are OpenCV 5.0's rows
     of `benchmarks/results/remap_kernels.md` (benchmarks/remap_kernels.py), where padding is on;
     the OpenCV 4.6 part of that file is the run on Ubuntu 24.04's libraries, where it is off."""
-    text = ' '.join(readme_section('How the solver works').split())
+    text = ' '.join(doc_section('docs/solver.md', 'Rectification').split())
     results = (RESULTS / 'remap_kernels.md').read_text()
     new, old = results.split('## OpenCV 4.6.0')
     assert '## OpenCV 5.0.0' in new and '3 channels padded to 4: yes' in new and '3 channels padded to 4: no' in old
@@ -957,11 +940,11 @@ def test_three_channel_padding_figures_are_the_remap_kernels_results():
 
 
 def test_serialized_path_figures_are_the_results_files():
-    """README "Serialized frame path (issue 14)": both tables are `benchmarks/results/serialized_path.md`
+    """performance.md "The serialized frame path" and "Start-up": both tables are `benchmarks/results/serialized_path.md`
     (benchmarks/rectify_throughput.py at 1080p, 720p and 4K with the previous node as baseline and
     the remap relay, one run), the sentences under them follow from it, and the start-up figures
     are `benchmarks/results/first_camera_info.md` (benchmarks/first_camera_info.py)."""
-    section = readme_section('Serialized frame path')
+    section = doc_section('docs/performance.md', 'The serialized frame path') + doc_section('docs/performance.md', 'Start-up')
     results = (RESULTS / 'serialized_path.md').read_text()
     raw = json.loads((RESULTS / 'serialized_path.json').read_text())
     assert '--baseline c26af4e' in results and raw['rounds'] == 2
@@ -1045,7 +1028,7 @@ def test_serialized_path_figures_are_the_results_files():
     if earlier.returncode == 0:  # a clone with its history: the earlier run's figures quoted
         old = next(x for x in json.loads(earlier.stdout)['throughput'] if (x['size'], x['encoding']) == ('1920x1080', 'bgr8'))
         old_node = [run['p30']['latency_ms']['50'] for run in old['rounds']['node']]
-        assert f"the node: {old_node[0]:.2f} and {old_node[1]:.2f} ms in the run of" in text
+        assert f"the node: {old_node[0]:.2f} and {old_node[1]:.2f} ms in one run" in text
         assert f"(1080p bgr8 relay p50 {hd[0][3]} ms against {old['relay']['p30']['latency_ms']['50']:.2f})" in text
     # the map format's share: the same run against the last stop's node (fixed-point maps)
     formats = markdown_rows((RESULTS / 'float_maps.md').read_text())
@@ -1067,17 +1050,17 @@ def test_serialized_path_figures_are_the_results_files():
             f'within 0.6 s) and {float(info_on):.2f} s with rectify on ({within_on} of {trials_on} within 0.9 s)') in text
     previous = (RESULTS / 'first_camera_info.md').read_text().split('## With config/fastdds_shm.xml as committed')[1]
     old = re.search(r'median: node ready (\d\.\d+) s, first CameraInfo (\d\.\d+) s', previous).groups()
-    assert f"the previous stop's node: {float(old[0]):.2f} s and {float(old[1]):.2f} s" in text
+    assert f"the node took {float(old[0]):.2f} s and {float(old[1]):.2f} s" in text
     imports = dict(re.findall(r'import zeroshot_calib_ros.ros.node, (.+?): median (\d\.\d+) s', latest))
     assert (f"takes {float(imports['install tree']):.2f} s against {float(imports['6c35e95 byte-compiled']):.2f} s "
-            f"for the previous stop's package byte-compiled and {float(imports['6c35e95 as exported (no .pyc)']):.2f} s"
-            in text)
+            f"for the package before those changes, byte-compiled, and "
+            f"{float(imports['6c35e95 as exported (no .pyc)']):.2f} s as it was installed then" in text)
 
 
 @pytest.mark.parametrize('vfov, a, fit_px', [(112.5, 1.0, 1e-12), (110, 1.04, 0.011), (115, 0.961, 0.0055),
                                              (120, 0.887, 0.030), (100, 1.21, 0.45)])
 def test_wide_model_equidistant_fit_errors_are_the_readmes(vfov, a, fit_px):
-    """README (beyond the paper): "Its `equidistant` fit for ROS is exact for the pure fisheye law
+    """solver.md (beyond the paper): "Its `equidistant` fit for ROS is exact for the pure fisheye law
     and close to it (1920x1080, hfov 200: vfov 112.5 gives a = 1 and 6e-14 px; ...)". The fit error
     is measured here independently of the fit: the Kannala-Brandt law written out
     (r = fx (theta + k1 theta^3 + ... + k4 theta^9), valid past 90 degrees, where OpenCV's
@@ -1104,12 +1087,13 @@ def test_wide_model_equidistant_fit_errors_are_the_readmes(vfov, a, fit_px):
 
 
 def test_line_refinement_figures_are_the_results_file():
-    """README "Past the spec sheet": the 60-lens room table and the street and corridor sentences are the rows of
-    `benchmarks/results/line_refinement.md` (benchmarks/line_refinement.py --evidence images)."""
+    """accuracy.md "Refining from ordinary images": the 60-lens room table and the street and corridor
+    sentences are the rows of `benchmarks/results/line_refinement.md` (benchmarks/line_refinement.py
+    --evidence images)."""
     rows = {r[1].split('`')[1]: r for r in markdown_rows((RESULTS / 'line_refinement.md').read_text())
             if len(r) == 11 and r[0] == 'images' and '`' in r[1]}
     room = rows['room']
-    text = ' '.join(README.split())
+    text = ' '.join(doc_section('docs/accuracy.md', 'Refining from ordinary images').split())
     zs_median, zs_p90 = room[3].split(' / ')
     median, p90 = room[4].strip('*').split(' / ')
     assert f'| zero-shot | {zs_median} | {zs_p90} | 100 % |' in text and room[8] == '100 % / 100 %'
@@ -1124,7 +1108,7 @@ def test_line_refinement_figures_are_the_results_file():
 
 
 def test_single_shot_with_the_spec_table_is_the_results_file():
-    """README "The spec as evidence": the single-image table (eq. 21, worst run, runs worse than
+    """accuracy.md "The spec as evidence": the single-image table (eq. 21, worst run, runs worse than
     zero-shot alone by > 0.2 px) is the rows of `benchmarks/results/board_with_spec.md`
     (benchmarks/board_with_spec.py), and the synthetic figures beside it are the runs of
     `benchmarks/results/board_single_shot.md` (flat boards; boards bent 0.5 %, fitted as bent and
@@ -1133,9 +1117,10 @@ def test_single_shot_with_the_spec_table_is_the_results_file():
     for r in markdown_rows((RESULTS / 'board_with_spec.md').read_text()):
         if len(r) == 12:
             rows.setdefault(r[0], r)  # the file's first table is the run of the code (a flat-board run follows)
-    readme = {r[0]: r for r in markdown_rows(README) if len(r) == 4}
+    evidence = doc_section('docs/accuracy.md', 'The spec as evidence')
+    readme = {r[0]: r for r in markdown_rows(evidence) if len(r) == 4}
     zs = next(r for r in markdown_rows((RESULTS / 'board_with_spec.md').read_text()) if r[0].startswith('ZS alone'))
-    text = ' '.join(README.split())
+    text = ' '.join(evidence.split())
     assert f'runs worse than zero-shot alone ({float(zs[1]):.2f} px) by > 0.2 px' in text
     for label, key in (('spec as a start (FC_eq.d.(1)+ZS)', 'FC_eq.d.(1)+ZS: spec as a start'),
                        ('spec as evidence, +- 1 deg (default)', 'MAP: spec as evidence, tolerance 1 deg'),
@@ -1154,3 +1139,60 @@ def test_single_shot_with_the_spec_table_is_the_results_file():
     assert f'cut the runs worse than zero-shot from {runs[()][0]} to {runs[()][1]} of 120' in text
     assert (f'a flat-board model is worse than zero-shot in {runs[("--bend 0.005", "--flat-boards")][1]} of 120 runs, '
             f'this one in {runs[("--bend 0.005",)][1]})') in text
+
+
+# -- the README's quick starts and summaries, against the pages and files they summarise -------
+
+def test_readme_one_fov_table_is_the_lens_profiles_held_out_medians():
+    """README, "What one FOV costs": the wide and narrow rows (hfov + vfov, hfov alone, dfov alone)
+    are the held-out medians of `benchmarks/results/lens_profiles.md` for the paper's zero-shot
+    (h+v) and one FOV (h only, d only), the same figures docs/accuracy.md quotes."""
+    results = {(r[0], r[2]): r for r in markdown_rows((RESULTS / 'lens_profiles.md').read_text()) if len(r) == 13}
+    table = doc_section('README.md', 'Quick start 2')
+    rows = {r[0].split(' (')[0]: r[1:] for r in markdown_rows(table) if r[0].startswith(('wide', 'narrow'))}
+    groups = {'wide': 'wide (hfov >= 100)', 'narrow': 'narrow (hfov < 100)'}
+    assert set(rows) == set(groups)
+    for name, group in groups.items():
+        for cell, estimator in zip(rows[name], ('paper ZS', 'h only', 'd only')):
+            assert _agrees(cell.replace(' px', ''), _number(results[(group, estimator)][10])), (name, estimator, cell)
+    assert 'median RMS error at 1920 px wide on the camera models the lens-shape table was not built from' in \
+        ' '.join(table.split())
+
+
+def test_readme_topics_table_is_the_ros_pages():
+    """README quick start 1: its topics table names each of docs/ros.md's topics and services
+    with the same type and direction (in, out, service)."""
+    full = {r[0]: r for r in markdown_rows(doc_section('docs/ros.md', 'Topics and services'))[1:]}
+    short = markdown_rows(doc_section('README.md', 'Quick start 1'))[1:]
+    assert [r[0] for r in short] == list(full)
+    for name, kind, note in short:
+        assert kind == full[name][1], name
+        direction = full[name][2]
+        assert note.split(',')[0].split(':')[0].strip() == direction, (name, note, direction)
+
+
+def test_solve_zero_shot_signature_is_library_mds():
+    """library.md: "`solve_zero_shot(spec, projection='auto', method='bracketed', fov_tolerance=1.0,
+    lens_prior=True)`"."""
+    import inspect
+    documented = re.search(r"`solve_zero_shot\((spec[^`]*)\)`", page('docs/library.md')).group(1)
+    parameters = inspect.signature(solve_zero_shot).parameters
+    listed = [p.strip() for p in documented.split(',')]
+    assert [p.split('=')[0] for p in listed] == list(parameters)
+    for item in listed[1:]:
+        name, value = item.split('=')
+        assert parameters[name].default == eval(value), name
+
+
+def test_an_internal_error_is_one_line_asking_for_a_report_with_status_1(capsys, monkeypatch):
+    """cli.md, exit statuses: "1 ... or an internal error (a bug: one line saying so, asking you to
+    report it with the command line)"; bad input is status 2."""
+    import zeroshot_calib_ros.cli as cli
+
+    def broken(args):
+        raise RuntimeError('something the code did not expect')
+    monkeypatch.setattr(cli, '_cmd_presets', broken)
+    status, out, err = run_main(['presets'], capsys)
+    assert status == 1 and out == '' and len(err) == 1, (status, err)
+    assert err[0].startswith('zeroshot-calib: internal error: RuntimeError') and 'report' in err[0]
+    assert run_main(['solve', '--width', '0', '--height', '1080', '--hfov', '118'], capsys)[0] == 2

@@ -1,8 +1,9 @@
-"""README claims about the ROS node that no other test checked (issue 11; the map of every claim
-to its test is docs/readme_claims.md), each against the installed node in its own process: the
-Parameters table (defaults, types, read-only, ranges, `--help`), the start-up log the README
-shows, the /diagnostics rate, integers in a params file, and set_camera_info's answer when the
-calibration is adopted but cannot be saved.
+"""Claims of the README and docs/ros.md about the ROS node that no other test checked (the map of
+every claim to its test is docs/readme_claims.md), each against the installed node in its own
+process: the Parameters table (defaults, types, read-only, ranges, `--help`), the start-up log
+docs/ros.md shows, the /diagnostics rate, integers in a params file, set_camera_info's answer
+when the calibration is adopted but cannot be saved, `make echo`, and importing the library from
+the install tree with the venv's Python.
 """
 import re
 import subprocess
@@ -21,17 +22,19 @@ from sensor_msgs.srv import SetCameraInfo
 from ros_peer import (LATCHED, NODE_EXECUTABLE, REPO, domain_id, peer, qos, ros_environment,  # noqa: F401
                       start_node)
 
-README = (REPO / 'README.md').read_text()
+from doc_pages import fenced_blocks, page, section
+
+README = page('README.md')
+ROS_DOC = page('docs/ros.md')
 SHARE = REPO / 'install' / 'zeroshot_calib_ros' / 'share' / 'zeroshot_calib_ros'
 NODE = '/zeroshot_calib'
 RCLPY_PARAMETERS = {'use_sim_time', 'start_type_description_service'}  # every rclpy node has them
 
 
 def readme_parameters():
-    """{name: (type cell, default cell)} of the README's Parameters table."""
-    section = README[README.index('### Parameters'):]
+    """{name: (type cell, default cell)} of docs/ros.md's Parameters table."""
     table = {}
-    for line in section.splitlines()[4:]:
+    for line in section('docs/ros.md', 'Parameters').splitlines()[4:]:
         if not line.startswith('|'):
             break
         names, kind, default = [c.strip() for c in line.strip('|').split('|')][:3]
@@ -68,7 +71,7 @@ def _mem_total_mib():
 
 
 def test_parameters_table_is_what_the_node_declares(peer, start_node):
-    """README, Parameters: every row's name, type, default, read-only flag and range ([0, 1] for
+    """ros.md, Parameters: every row's name, type, default, read-only flag and range ([0, 1] for
     balance, [0.1, 10] for fov_scale) is what the running node declares (ListParameters,
     GetParameters, DescribeParameters); and `node --help` prints "usage and every parameter,
     exit 0". The node is started from the preset alone, so every other parameter keeps its default
@@ -106,7 +109,7 @@ def test_parameters_table_is_what_the_node_declares(peer, start_node):
 
 
 def test_start_up_log_is_the_readme_block_and_diagnostics_come_at_1_hz(peer, start_node, tmp_path):
-    """README: "At start-up the node logs the calibration block (spec, model, `w*`, `f*`, `K`,
+    """ros.md: "At start-up the node logs the calibration block (spec, model, `w*`, `f*`, `K`,
     `D`, fit error), then what it resolved (`make run ARGS='-r __ns:=/front -p rectify:=true'`)"
     followed by the block it shows; `/diagnostics` "1 Hz". Started as `make run` starts it (the
     HERO9 params file, those ARGS): the calibration lines are those of the README's `zeroshot-calib
@@ -127,7 +130,7 @@ def test_start_up_log_is_the_readme_block_and_diagnostics_come_at_1_hz(peer, sta
     assert len(solve_output) == 8
     for line in solve_output:
         assert any(x.endswith(line) for x in log), f'calibration block line missing: {line}'
-    block = re.search(r'```\n(interfaces \(QoS.*?)```', README, re.S).group(1).strip().splitlines()
+    block = re.search(r'```\n(interfaces \(QoS.*?)```', ROS_DOC, re.S).group(1).strip().splitlines()
     budget = int(_mem_total_mib() // 8)
     block = [re.sub(r'max_map_memory_mb = \d+', f'max_map_memory_mb = {budget}', line) for line in block]
     block = [line.replace('/root/.ros', str(tmp_path / 'ros_home')) for line in block]
@@ -140,7 +143,7 @@ def test_start_up_log_is_the_readme_block_and_diagnostics_come_at_1_hz(peer, sta
 
 
 def test_integers_in_a_params_file_are_numbers(peer, start_node, tmp_path):
-    """README: "Integers are fine where a number is expected (`-p hfov:=118`, `balance: 1` in
+    """ros.md: "Integers are fine where a number is expected (`-p hfov:=118`, `balance: 1` in
     YAML)". A params file with integer hfov, vfov, balance and fov_scale: the CameraInfo is the
     paper's HERO9 W1 (f* 876.0) with P = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify
     of its K, D at balance 1."""
@@ -170,7 +173,7 @@ def _calibration(model):
 
 
 def test_set_camera_info_adopted_but_not_saved_answers_false_and_says_so(peer, start_node, tmp_path):
-    """README (set_camera_info): "`success` means adopted and saved; a calibration adopted but not
+    """ros.md (set_camera_info): "`success` means adopted and saved; a calibration adopted but not
     saved answers `success: false` and says so". camera_info_url is an .ini file, whose format
     (camera_calibration_parsers' INI) has no equidistant model: an equidistant calibration is
     adopted (published) but not saved; a plumb_bob one is adopted and saved (success)."""
@@ -220,3 +223,93 @@ def test_maps_of_another_frame_size_are_released_after_10_s_unused(monkeypatch):
     assert active.release_unused(OTHER_SIZE_IDLE_SECONDS) == [(320, 180)]
     clock[0] += 100
     assert active.release_unused(OTHER_SIZE_IDLE_SECONDS) == [] and active.rectifier_for(160, 90) is not None
+
+
+def _make(*args, domain, timeout=60):
+    """`make -s ARGS` as a user types it in another terminal: the Makefile's DDS environment,
+    the test's ROS domain (the node's)."""
+    import os
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(('MAKE', 'MFLAGS', 'ROS_', 'RMW_', 'FASTDDS_', 'FASTRTPS_', 'PYTHONPATH'))}
+    env['ROS_DOMAIN_ID'] = str(domain)
+    return subprocess.run(['make', '-s', '-C', str(REPO), *args], capture_output=True, text=True, env=env,
+                          timeout=timeout)
+
+
+def _echoed(output):
+    """The CameraInfos `make echo` printed: (frame_id, width, height, distortion_model, d, k, p)."""
+    messages = []
+    # (Fast DDS writes its own log lines, in colour, to stdout too, e.g. when another process holds
+    # a shared-memory port: not ours)
+    output = ''.join(line for line in output.splitlines(keepends=True) if '\x1b[' not in line)
+    for doc in output.split('---\n')[:-1]:
+        data = yaml.safe_load(doc)
+        messages.append((data['header']['frame_id'], data['width'], data['height'], data['distortion_model'],
+                         data['d'], data['k'], data['p']))
+    return messages
+
+
+def test_make_echo_prints_the_camera_info_the_running_node_publishes(peer, start_node, domain_id):  # noqa: F811
+    """README and ros.md: "While `make run` runs, `make echo` in another terminal prints the
+    CameraInfo the node publishes, as `ros2 topic echo /camera_info` would"; `make echo
+    TOPIC=/front/camera_info ECHO_ARGS='--count 3'`; with none "it says so in one line and
+    fails". The node started as `make run` starts it (the HERO9 params file, root namespace) and
+    one in /front: what `make echo` prints (YAML, one document per message, as ros2 topic echo)
+    is, field for field, the CameraInfo a peer receives."""
+    start_node('--ros-args', '--params-file', str(SHARE / 'config' / 'hero9_w1.yaml'))
+    start_node('--ros-args', '--params-file', str(SHARE / 'config' / 'c922.yaml'), '-r', '__ns:=/front')
+    infos = peer.collect(CameraInfo, '/camera_info', LATCHED)
+    front = peer.collect(CameraInfo, '/front/camera_info', LATCHED)
+    peer.spin_until(lambda: infos and front, what='/camera_info and /front/camera_info')
+
+    def fields(msg):
+        return (msg.header.frame_id, msg.width, msg.height, msg.distortion_model, list(msg.d), list(msg.k),
+                list(msg.p))
+    assert 'make echo' in ' '.join(README.split()) and "make echo TOPIC=/front/camera_info ECHO_ARGS='--count 3'" in ROS_DOC
+    done = _make('echo', domain=domain_id)
+    assert done.returncode == 0, done.stderr
+    (echoed,) = _echoed(done.stdout)
+    assert echoed == fields(infos[-1]) and echoed[5][0] == pytest.approx(876.0, abs=0.05)  # Hero9(W1), f*
+    done = _make('echo', 'TOPIC=/front/camera_info', 'ECHO_ARGS=--count 3', domain=domain_id)
+    assert done.returncode == 0, done.stderr
+    echoed = _echoed(done.stdout)
+    assert len(echoed) == 3 and all(e == fields(front[-1]) for e in echoed) and echoed[0][3] == 'plumb_bob'
+    done = _make('echo', 'TOPIC=/rear/camera_info', 'ECHO_ARGS=--timeout 2', domain=domain_id)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode != 0 and _echoed(done.stdout) == [] and 'header:' not in done.stdout
+    assert lines[0].startswith('make echo: no CameraInfo on /rear/camera_info within 2 s'), lines
+
+
+def test_the_venv_python_imports_the_library_after_sourcing_the_install_tree(tmp_path):
+    """README and library.md: after `make build`, `.venv/bin/python` alone does not see the
+    package; after `source install/setup.bash` the documented one-liner prints what library.md
+    says, from any directory (here /, with nothing of ours in the environment), and the module
+    comes from install/."""
+    import os
+    (block,) = [body for info, body, _ in fenced_blocks(page('docs/library.md')) if info == 'sh']
+    source, command = block.strip().splitlines()
+    assert source == 'source install/setup.bash' and command.startswith(".venv/bin/python -c '")
+    code = command[len(".venv/bin/python -c '"):-1]
+    expected = re.search(r'which prints `([^`]+)` from any directory', page('docs/library.md')).group(1)
+    env = {'HOME': os.environ.get('HOME', '/root'), 'PATH': '/usr/local/bin:/usr/bin:/bin'}
+    python = str(REPO / '.venv' / 'bin' / 'python')
+    alone = subprocess.run([python, '-c', code], cwd='/', env=env, capture_output=True, text=True, timeout=60)
+    assert alone.returncode != 0 and "No module named 'zeroshot_calib_ros'" in alone.stderr
+    done = subprocess.run(['bash', '-c', f'source {REPO}/install/setup.bash && {python} -c "$0" && '
+                           f'{python} -c "import zeroshot_calib_ros; print(zeroshot_calib_ros.__file__)"', code],
+                          cwd='/', env=env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    printed, where = done.stdout.strip().splitlines()
+    assert printed == expected
+    assert where.startswith(str(REPO / 'install' / 'zeroshot_calib_ros' / 'lib'))
+
+
+def test_make_echo_defaults_are_ros_mds():
+    """ros.md: `make echo` prints /camera_info (where `make run` publishes) once, waiting "up to 10 s
+    (`ECHO_ARGS='--timeout S'`) for each CameraInfo"; a count or timeout it cannot use is one
+    line and status 2."""
+    from zeroshot_calib_ros.ros.echo import build_parser, main
+    args = build_parser().parse_args([])
+    assert (args.topic, args.count, args.timeout) == ('/camera_info', 1, 10.0)
+    assert '`make echo` waits up to 10 s' in ' '.join(ROS_DOC.split())
+    assert main(['--count', '0']) == 2 and main(['--timeout', '-1']) == 2

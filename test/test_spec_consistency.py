@@ -294,9 +294,11 @@ def test_cli_calibrate_warns_about_the_spec(tmp_path, capsys):
 
 
 def test_the_documented_consistency_lines_are_what_solve_prints(capsys):
-    from pathlib import Path
-    readme = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
-    documented = re.findall(r'e\.g\. for\s+`solve ([^`]*)`:\s*`(zeroshot-calib: (error|warning): [^`]*)`', readme)
+    """docs/cli.md's examples of the swapped-FOV error and the FOVs-do-not-fit warning are what
+    `solve` prints for the commands they name."""
+    from doc_pages import all_pages
+    documented = re.findall(r'e\.g\. for\s+`solve ([^`]*)`:\s*`(zeroshot-calib: (error|warning): [^`]*)`',
+                            all_pages())
     assert any('look swapped' in line for _, line, _ in documented)
     assert any('the FOVs do not fit' in line for _, line, _ in documented)
     for command, line, kind in documented:
