@@ -559,3 +559,80 @@ def test_jacobian_in_threads_is_the_jacobian_in_one_thread():
     # outside the block: one thread again
     seen.clear()
     assert np.array_equal(problem.jacobian(x), alone) and seen == {threading.get_ident()}
+
+
+@pytest.mark.parametrize('threads', [2, 3])
+def test_jacobian_threads_computes_that_many_columns_at_once(threads):
+    """``jacobian_threads(n)`` evaluates n columns at the same time (what makes ``refine`` use the
+    machine's cores), not one after another in one helper thread: each of n threads, at its first
+    evaluation, waits at a barrier that only n threads arriving together pass. The threads end
+    with the block."""
+    import threading
+    from zeroshot_calib_ros.core.estimation.problem import jacobian_threads
+    caller = threading.get_ident()
+    barrier, met, lock = threading.Barrier(threads, timeout=20), set(), threading.Lock()
+
+    class Meeting(FovTerm):
+        def residuals(self, camera):
+            me = threading.get_ident()
+            with lock:
+                first = me != caller and me not in met
+                met.add(me)
+            if first:
+                barrier.wait()  # BrokenBarrierError after the timeout unless n threads run at once
+            return super().residuals(camera)
+
+    spec = spec_of(TRUTH)
+    layout = KannalaBrandtLayout(zero_shot_camera(spec, W, H), 4)
+    problem = Problem(layout, [StraightnessTerm(line_curves(TRUTH, np.random.default_rng(5), 10)),
+                               Meeting(dict(spec.given()), W, H)])
+    x = layout.x_from(zero_shot_camera(spec, W, H))
+    assert x.size > threads
+    with jacobian_threads(threads):
+        J = problem.jacobian(x)
+    workers = met - {caller}
+    assert len(workers) == threads and np.all(np.isfinite(J))
+    # the block's threads end with it (a long-running caller is left no idle threads)
+    assert not workers & {t.ident for t in threading.enumerate()}
+
+
+def test_refine_from_images_fits_in_its_workers(monkeypatch):
+    """``refine_from_images(workers=n)`` (``zeroshot-calib refine`` passes the machine's cores) also
+    computes its fits' Jacobians in worker threads, not only the detection; with one worker
+    everything runs in the calling thread."""
+    import threading
+    from zeroshot_calib_ros.core.estimation import problem as problem_module
+    from zeroshot_calib_ros.core.lines import detect as detect_module
+    rng = np.random.default_rng(11)
+    curves = {i: [Curve(p, i) for p in line_curves(TRUTH, rng, 12)] for i in range(2)}
+    monkeypatch.setattr(detect_module, 'find_edges', lambda image, camera, views=None, **kw: object())
+    monkeypatch.setattr(detect_module, 'curves_from_edges', lambda edges, camera, image_id=None: curves[image_id])
+    monkeypatch.setattr(detect_module, 'make_views', lambda camera: None)
+    evaluate, threads = problem_module.Problem._evaluate, []
+
+    def recording(self, x, robust):
+        threads.append(threading.get_ident())
+        return evaluate(self, x, robust)
+
+    monkeypatch.setattr(problem_module.Problem, '_evaluate', recording)
+    images = [np.zeros((H, W), np.uint8)] * 2
+    result = refine_from_images(spec_of(TRUTH), images, rounds=1, workers=2)
+    assert result.lines_used > 0 and threads
+    assert set(threads) - {threading.get_ident()}, 'every Jacobian column was computed in the calling thread'
+    threads.clear()
+    refine_from_images(spec_of(TRUTH), images, rounds=1, workers=1)
+    assert threads and set(threads) == {threading.get_ident()}
+
+
+def test_refine_from_images_detects_each_image_with_the_options_given():
+    """Detection options given to ``refine_from_images`` (here ``max_curves``) are the detector's,
+    and each image's curves are found in that image: a blank frame beside a rendered room gives
+    none, the room at most ``max_curves``."""
+    import scenes
+    small = TRUTH.scaled(480, 300)
+    room = scenes.render(small, 'room', seed=1)[0]
+    blank = np.full_like(room, 128)
+    result = refine_from_images(spec_of(small), [blank, room], rounds=1, max_curves=4)
+    found = result.curves + result.static_curves
+    assert found and {c.image for c in found} == {1}
+    assert len(found) <= 4

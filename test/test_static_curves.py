@@ -186,3 +186,24 @@ def test_the_cli_says_what_it_left_out_and_draws_it(vehicle_frames, tmp_path, ca
     status, out, err = run_main(['refine', *paths, '--circle-fov', '190', '--json'], capsys)
     # the same count in --json as in the text
     assert status == 0 and json.loads(out)['refinement']['curves_static'] == int(left_out[0].split()[2])
+
+
+def test_curves_too_short_to_judge_are_kept_and_change_no_other_verdict():
+    """Curves with fewer than three usable points (hand-made, or with NaN points) are not judged:
+    they are kept, and every other curve is judged in its own image as without them. Here a
+    scene line of frame 1 lies where frame 0 has only a faint texture: judged in frame 1 (its
+    own), frame 0's edge is too faint to be the same edge, so the line is kept."""
+    curves, _ = frames_with_a_body(count=2)
+    line = Curve(segment(100, 380, 400, 330), image=1)
+    ordered = [c for c in curves if c.image == 0] + [line] + [c for c in curves if c.image == 1]
+    images = draw(ordered, 2)
+    stroke(images[0], line.points, 100)
+    verdict = static_curves(ordered, images)
+    assert list(np.flatnonzero(verdict)) == [0, 6]  # the two bodies; the line (5) is not static
+    short = [Curve(np.array([[50.0, 60.0], [58.0, 60.0]]), image=0),
+             Curve(np.array([[70.0, 60.0], [np.nan, np.nan], [90.0, 60.0]]), image=1)]
+    mixed = [short[0]] + ordered[:5] + [short[1]] + ordered[5:]
+    got = static_curves(mixed, images)
+    assert not got[0] and not got[6]
+    np.testing.assert_array_equal(np.delete(got, [0, 6]), verdict)
+    assert not static_curves(short, images).any()
