@@ -22,12 +22,24 @@ from zeroshot_calib_ros.core.report import canvas, debug_sheet
 from zeroshot_calib_ros.core.zeroshot.solver import solve_zero_shot
 from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
 
-VERDICT_GREEN = np.array(canvas.GREEN)
-VERDICT_RED = np.array(canvas.RED)
-
-
 def exact(image, colour):
     return int(np.sum(np.all(image == np.array(colour), axis=2)))
+
+
+def near(image, colour, tolerance=35):
+    """Pixels within ``tolerance`` of ``colour`` on every channel: text in that colour (its
+    anti-aliased strokes, whatever font this OpenCV draws with), not its blend with the paper."""
+    return int(np.sum(np.all(np.abs(image.astype(int) - np.array(colour)) <= tolerance, axis=2)))
+
+
+def verdict(picture):
+    """'accepted' / 'refused' / None: the colour the verdict is written in."""
+    green, red = near(picture, canvas.GREEN), near(picture, canvas.RED)
+    if green > 30 and red == 0:
+        return 'accepted'
+    if red > 30 and green == 0:
+        return 'refused'
+    return None if green == red == 0 else (green, red)
 
 
 def read(path):
@@ -68,7 +80,7 @@ def test_solve_report_has_the_lens_curve_the_error_map_and_a_rectified_preview(t
     # the title, above the panels: nothing accepted or refused, so neither verdict colour
     title = image[:lens[1]]
     assert pictures.is_drawn_on(title, 0.005)
-    assert exact(title, canvas.GREEN) == 0 and exact(title, canvas.RED) == 0
+    assert verdict(title) is None
 
 
 def test_the_error_map_is_higher_at_the_corners_of_a_one_fov_solve(tmp_path, capsys):
@@ -188,10 +200,7 @@ def test_calibrate_report_adds_the_board_coverage_and_a_bar_per_image(board_corn
         assert exact(cover, colour) > 20
     # the verdict in its colour: accepted in green, or refused in red, as --json says
     title = image[:panels[0][0][1]]
-    if record['accepted']:
-        assert exact(title, canvas.GREEN) > 50 and exact(title, canvas.RED) == 0
-    else:
-        assert exact(title, canvas.RED) > 50 and exact(title, canvas.GREEN) == 0
+    assert verdict(title) == ('accepted' if record['accepted'] else 'refused')
 
 
 def test_calibrate_without_a_spec_has_no_error_map_and_no_fov_marks(board_corners, tmp_path, capsys):
@@ -250,12 +259,11 @@ def test_refine_report_shows_the_first_image_rectified_and_the_verdict(views, re
     assert [len(panels[c]) for c in range(3)] == [1, 1, 1]
     for c in range(3):
         assert pictures.is_drawn_on(pictures.region(image, panels[c][0]))
-    # the lens panel: the refined camera and, dashed, the zero-shot one; the three FOVs marked
+    # the lens panel: the refined camera, the three FOVs of the spec marked
     lens = pictures.region(image, panels[0][0])
-    assert exact(lens, canvas.BLUE) > 300 and exact(lens, canvas.MUTED) > 100 and exact(lens, canvas.ORANGE) > 90
+    assert exact(lens, canvas.BLUE) > 300 and exact(lens, canvas.ORANGE) > 90
     pictures.error_map(image, panels[1][0])
-    title = image[:panels[0][0][1]]
-    assert exact(title, canvas.GREEN) > 50 and exact(title, canvas.RED) == 0
+    assert verdict(image[:panels[0][0][1]]) == 'accepted'
 
 
 def test_the_contact_sheet_has_a_labelled_panel_per_image_showing_it(views, refined):
@@ -271,8 +279,7 @@ def test_the_contact_sheet_has_a_labelled_panel_per_image_showing_it(views, refi
         green = (picture[..., 1] > 150) & (picture[..., 0] < 80) & (picture[..., 2] < 80)
         assert green.sum() > 100
     # with the verdict above them, in green for an accepted refinement
-    header = sheet[:panels[0][1] - debug_sheet.LABEL_H]
-    assert exact(header, canvas.GREEN) > 50 and exact(header, canvas.RED) == 0
+    assert verdict(sheet[:panels[0][1] - debug_sheet.LABEL_H]) == 'accepted'
     # and the total size stays reasonable
     assert sheet.shape[1] <= debug_sheet.MAX_WIDTH and sheet.shape[0] <= debug_sheet.MAX_HEIGHT
 
@@ -287,14 +294,12 @@ def test_a_refused_refine_says_so_in_red_on_both_pictures(tmp_path, capsys):
     assert out.splitlines()[-1] == f'wrote {report}'
     image = read(report)
     panels = pictures.report_panels(image)
-    title = image[:panels[0][0][1]]
-    assert exact(title, canvas.RED) > 50 and exact(title, canvas.GREEN) == 0
+    assert verdict(image[:panels[0][0][1]]) == 'refused'
     pictures.error_map(image, panels[1][0])  # zero-shot's error bar, mapped
     debug = read(sheet)
     sheet_panels = pictures.sheet_panels(debug, 360 / 640)
     assert len(sheet_panels) == 1
-    header = debug[:sheet_panels[0][1] - debug_sheet.LABEL_H]
-    assert exact(header, canvas.RED) > 50 and exact(header, canvas.GREEN) == 0
+    assert verdict(debug[:sheet_panels[0][1] - debug_sheet.LABEL_H]) == 'refused'
 
 
 def test_the_contact_sheet_scales_many_images_to_a_reasonable_size():
@@ -315,3 +320,22 @@ def test_the_contact_sheet_scales_many_images_to_a_reasonable_size():
     for (x, y, pw, ph), image in zip(panels, images):
         assert pictures.shows(sheet[y:y + ph, x:x + pw], image) > 0.9
     assert math.prod(sheet.shape[:2]) < 1600 * 2000
+
+
+def test_the_concrete_commands_of_docs_report_md_run_and_write_their_pictures(tmp_path, capsys, monkeypatch):
+    """docs/report.md's commands without placeholders, run as written (in an empty directory)."""
+    import re
+    import shlex
+    from pathlib import Path
+    text = (Path(__file__).resolve().parents[1] / 'docs' / 'report.md').read_text()
+    blocks = re.findall(r'```\n(.*?)```', text, re.S)
+    commands = [line for block in blocks for line in block.splitlines() if line.startswith('zeroshot-calib ')]
+    concrete = [c for c in commands if not re.search(r'\bIMG\b|\bH\b|\bV\b|images/', c)]
+    assert concrete, commands
+    monkeypatch.chdir(tmp_path)
+    for command in concrete:
+        argv = shlex.split(command)[1:]
+        status, out, err = run_main(argv, capsys)
+        assert status == 0, (command, err)
+        target = argv[argv.index('--report') + 1]
+        assert (tmp_path / target).is_file() and f'wrote {target}' in out

@@ -30,8 +30,8 @@ import numpy as np
 from ..estimation.uncertainty import Uncertainty, uncertainty_map
 from ..ros_data.rectify import Rectifier, new_camera_matrix
 from .canvas import (BLUE, GREEN, INK, MUTED, ORANGE, PAPER, RED, Rect, as_bgr, axes, colour_bar, fit_size,
-                     heat_map, legend, nice_ceiling, panel, paste_fitted, polyline, put_label, put_text, put_wrapped,
-                     wrapped_height)
+                     heat_map, legend, legend_column, nice_ceiling, panel, paste_fitted, polyline, put_label,
+                     put_text, put_wrapped, text_width, wrapped_height)
 from .synthetic import cube_grid
 
 WIDTH = 1440
@@ -260,10 +260,14 @@ def _lens_curve(canvas, body: Rect, data: ReportData):
     w, h = camera.width, camera.height
     marks = spec_marks(data.spec, w, h, data.fov_tolerance_deg)
     corner = math.hypot(w, h) / 2.0
-    try:
-        top_angle = math.degrees(camera.max_field_angle())
-    except (ValueError, FloatingPointError):
-        top_angle = float('nan')
+    # the angles shown: up to where the curve reaches the image corner's radius (or, for a lens
+    # model that turns back before it, where it stops), and every FOV mark
+    probe = np.radians(np.linspace(0.0, 180.0, 721))
+    radii = radius_curve(camera, probe)
+    reached = np.nonzero(np.isfinite(radii) & (radii >= corner))[0]
+    seen = np.nonzero(np.isfinite(radii))[0]
+    top_angle = (math.degrees(probe[reached[0]]) if len(reached) else
+                 math.degrees(probe[seen[-1]]) if len(seen) else float('nan'))
     angles = [a + t for _, a, _, t in marks] + ([top_angle] if math.isfinite(top_angle) else [])
     x_max = nice_ceiling(max(angles + [30.0]) * 1.06)
     x_max = min(x_max, 180.0) if max(angles + [0.0]) <= 180.0 else x_max
@@ -291,11 +295,14 @@ def _lens_curve(canvas, body: Rect, data: ReportData):
         (ur, _), = ax.to_px([angle + tol], [radius])
         cv2.line(canvas, (int(ul), int(v)), (int(ur), int(v)), ORANGE, 2, cv2.LINE_AA)
         cv2.drawMarker(canvas, (int(round(u)), int(round(v))), ORANGE, cv2.MARKER_TILTED_CROSS, 11, 2, cv2.LINE_AA)
-        below = v < ax.area.y + 40
-        put_text(canvas, label, int(u) - 8, int(v) + (8 if below else -22), 0.42, ORANGE, 1, 'right')
+        # the label below and right of its mark, else above and left (a rising curve leaves both empty)
+        right = u + 10 + text_width(label, 0.42) < ax.area.x + ax.area.w - 4
+        put_label(canvas, label, int(u) + (10 if right else -10), int(v) + (7 if right else -22), 0.42, ORANGE,
+                  'left' if right else 'right')
     if marks:
         entries.append((f'spec FOV +- {data.fov_tolerance_deg / 2:g} deg', ORANGE))
-    legend(canvas, ax.area.x + 8, ax.area.y + 8, entries, 0.4)
+    # the legend in the lower right corner, which a rising curve leaves empty
+    legend_column(canvas, ax.area.x + ax.area.w - 6, ax.area.y + ax.area.h - 4, entries, 0.4)
 
 
 # -- the error map ----------------------------------------------------------------------------------
@@ -334,7 +341,7 @@ def _error_map(canvas, body: Rect, data: ReportData):
     # the principal point of the camera written
     pp = (int(round(x + camera.cx / camera.width * fw)), int(round(y + camera.cy / camera.height * fh)))
     cv2.drawMarker(canvas, pp, (255, 255, 255), cv2.MARKER_CROSS, 12, 1, cv2.LINE_AA)
-    colour_bar(canvas, Rect(x + fw + 14, y, 14, fh), vmax, '1 sigma px', clipped)
+    colour_bar(canvas, Rect(x + fw + 14, y, 14, fh), vmax, 'px', clipped)
     notes = ['cross: principal point']
     if clipped:
         notes.append(f'largest {largest:.3g} px')
@@ -373,6 +380,14 @@ def _rectified(canvas, body: Rect, data: ReportData):
     box = Rect(body.x + 10, body.y + 10, body.w - 20, body.h - 36)
     where = paste_fitted(canvas, rectified, box)
     cv2.rectangle(canvas, (where.x - 1, where.y - 1), (where.x + where.w, where.y + where.h), INK, 1)
+    # the rectified camera's principal point far off the image: balance 0 kept one side of a lens
+    # whose edges are seen at very different angles (say so: the preview is not the whole scene)
+    u0, v0 = P[0, 2] / small.width, P[1, 2] / small.height
+    if not (0.0 <= u0 <= 1.0 and 0.0 <= v0 <= 1.0):
+        note = (f'rectified principal point ({P[0, 2] / scale:.0f}, {P[1, 2] / scale:.0f}) off the image: '
+                'one side shown (--balance)')
+        put_text(canvas, note, body.x + 10, body.y + body.h - 22, 0.4, RED, 1)
+        return
     put_text(canvas, f'balance {data.balance:g}, fov-scale {data.fov_scale:g}: straight lines should be straight',
              body.x + 10, body.y + body.h - 22, 0.4, MUTED, 1)
 
@@ -398,7 +413,7 @@ def _coverage(canvas, body: Rect, data: ReportData):
     x, y = box.x + (box.w - fw) // 2, box.y + (box.h - fh) // 2
     if data.image is not None:
         frame = cv2.resize(as_bgr(data.image), (fw, fh), interpolation=cv2.INTER_AREA)
-        frame = (0.35 * frame + 0.65 * 255).astype(np.uint8)
+        frame = (0.25 * frame + 0.75 * 255).astype(np.uint8)  # faint: the boards are what counts here
     else:
         frame = np.full((fh, fw, 3), 245, np.uint8)
     s = fw / camera.width

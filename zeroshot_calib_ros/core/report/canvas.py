@@ -185,11 +185,12 @@ def nice_step(span: float, target: int = 5) -> float:
 
 
 def nice_ceiling(value: float) -> float:
-    """The smallest 1, 2, 2.5 or 5 times a power of ten at or above ``value`` (> 0)."""
+    """The smallest round number (1, 1.2, 1.5, 2, 2.5, 3, 4, 5, 6 or 8 times a power of ten) at or
+    above ``value`` (> 0)."""
     if not (value > 0 and math.isfinite(value)):
         return 1.0
     power = 10 ** math.floor(math.log10(value))
-    for m in (1, 1.5, 2, 2.5, 3, 4, 5, 6, 8, 10):
+    for m in (1, 1.2, 1.5, 2, 2.5, 3, 4, 5, 6, 8, 10):
         if m * power >= value * (1 - 1e-9):
             return m * power
     return 10 * power
@@ -320,7 +321,8 @@ def fill_from_neighbours(values: np.ndarray, passes: int = 3) -> np.ndarray:
     return out
 
 
-def heat_map(values: np.ndarray, vmax: float, size: Tuple[int, int], no_data: Optional[np.ndarray] = None) -> np.ndarray:
+def heat_map(values: np.ndarray, vmax: float, size: Tuple[int, int],
+             no_data: Optional[np.ndarray] = None) -> np.ndarray:
     """A (rows, cols) grid of values spanning an image edge to edge, drawn at ``size`` (w, h) in
     ``COLORMAP`` over 0..vmax, bilinear between the grid nodes; NaN nodes are ``NO_DATA``.
     ``no_data``: an (h, w) mask drawn as ``NO_DATA`` instead (the values then extended past it
@@ -376,6 +378,10 @@ def colour_bar(canvas, rect: Rect, vmax: float, label: str = 'px', clipped: bool
     put_text(canvas, label, rect.x, rect.y + rect.h + 6, 0.4, INK, 1)
 
 
+def legend_width(entries: Sequence[Tuple[str, tuple]], scale: float = 0.45) -> int:
+    return sum(28 + text_width(text, scale) + 18 for text, _ in entries) - 18
+
+
 def legend(canvas, x: int, y: int, entries: Sequence[Tuple[str, tuple]], scale: float = 0.45,
            line: bool = True) -> int:
     """Entries (text, colour) left to right from (x, y), each a short stroke (or a square) and its
@@ -388,3 +394,16 @@ def legend(canvas, x: int, y: int, entries: Sequence[Tuple[str, tuple]], scale: 
         x += 28
         x += put_text(canvas, text, x, y, scale, INK, 1) + 18
     return x
+
+
+def legend_column(canvas, right: int, bottom: int, entries: Sequence[Tuple[str, tuple]], scale: float = 0.4):
+    """Entries (text, colour) one under the other, a stroke and the text each, the block's lower
+    right corner at (right, bottom)."""
+    step = line_height(scale)
+    width = max(text_width(text, scale) for text, _ in entries) + 30
+    y = bottom - step * len(entries)
+    cv2.rectangle(canvas, (right - width - 6, y - 4), (right + 2, bottom), WHITE, -1)
+    for text, colour in entries:
+        cv2.line(canvas, (right - width, y + 6), (right - width + 22, y + 6), colour, 3, cv2.LINE_AA)
+        put_text(canvas, text, right - width + 28, y, scale, INK, 1)
+        y += step

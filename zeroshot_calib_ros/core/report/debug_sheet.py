@@ -4,8 +4,9 @@ Under a header with the verdict (ACCEPTED in green, REFUSED in red, and the reas
 one panel per image in the order given, each labelled with its number, name and its counts of
 curves: used by the fit (green), rejected (red), left out for staying put across the images
 (orange; the vehicle's or robot's own body, lens dirt). Below them the first image rectified
-with the zero-shot camera and with the camera written, side by side, with one rectified camera
-(the zero-shot one's P) so that the straightness compares directly.
+with the zero-shot camera and with the refined camera (the one written when accepted, the one
+refused otherwise; none when no fit was made), side by side, with one rectified camera (the
+zero-shot one's P) so that the straightness compares directly.
 
 The sheet is at most ``MAX_WIDTH`` px wide and about ``MAX_HEIGHT`` px high: panels are the
 images scaled down (never up) to fit; the curves are drawn at the panel's scale.
@@ -15,7 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from types import SimpleNamespace
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -26,7 +27,7 @@ from .calibration_report import verdict_text
 from .canvas import (CURVE_REJECTED, CURVE_STATIC, CURVE_USED, INK, MUTED, PAPER, as_bgr, legend, put_text,
                      put_wrapped, text_width, wrapped_height)
 
-MAX_WIDTH = 1600
+MAX_WIDTH = 1280
 MAX_HEIGHT = 2000
 MARGIN = 12
 GAP = 10
@@ -35,7 +36,7 @@ LABEL_BG = (72, 52, 40)
 """The label bar above each panel: a dark slate, never the colour of a grey image's pixel."""
 LABEL_INK = (245, 245, 245)
 MAX_COLUMNS = 6
-PAIR_WIDTH = 560
+PAIR_WIDTH = 320
 """Each rectified view below the panels is at most this wide (or a panel's width if wider)."""
 
 
@@ -45,7 +46,7 @@ class DebugSheet:
     panels: List[Tuple[int, int, int, int]] = field(default_factory=list)
     """(x, y, w, h) of each image's panel (its label bar and the image), in the order given."""
     rectified: List[Tuple[int, int, int, int]] = field(default_factory=list)
-    """(x, y, w, h) of the rectified views: zero-shot's, then the camera written's."""
+    """(x, y, w, h) of the rectified views: zero-shot's, then the refined camera's (if any)."""
 
 
 def columns_for(n: int, width: int, height: int) -> int:
@@ -138,14 +139,20 @@ def render_debug_sheet(images: Sequence[np.ndarray], names: Sequence[str], resul
         sheet.panels.append((x0, y0, pw, LABEL_H + ph))
     y += grid_h + GAP
 
-    # the first image rectified with zero-shot and with the camera written, one P (zero-shot's)
+    # the first image rectified with zero-shot and with the refined camera (written, or refused and
+    # not written; none when no fit was made), one P (zero-shot's)
     P = new_camera_matrix(zero_shot_camera, balance, fov_scale)
+    fitted = result.camera if result.accepted else getattr(result, 'refined_camera', None)
     titles = ('image 1 rectified with the zero-shot camera',
-              'with the camera written (' + ('refined' if result.accepted else 'zero-shot kept') + ')')
-    for k, camera in enumerate((zero_shot_camera, result.camera)):
+              'with the refined camera' + (' (written)' if result.accepted else ' (refused: not written)'))
+    for k, camera in enumerate((zero_shot_camera, fitted)):
+        if camera is None:
+            put_text(canvas, 'no refined camera: no fit was made', MARGIN + pair_w + GAP, y + 4, 0.45, MUTED, 1)
+            continue
         x0 = MARGIN + k * (pair_w + GAP)
         rect = Rectifier(camera, P=P).rectify(images[0])
-        rect = cv2.resize(as_bgr(rect), (pair_w, pair_h), interpolation=cv2.INTER_AREA if pair_w < w else cv2.INTER_LINEAR)
+        rect = cv2.resize(as_bgr(rect), (pair_w, pair_h),
+                          interpolation=cv2.INTER_AREA if pair_w < w else cv2.INTER_LINEAR)
         canvas[y + LABEL_H:y + LABEL_H + pair_h, x0:x0 + pair_w] = rect
         put_text(canvas, titles[k], x0, y + 4, 0.45, INK if k else MUTED, 1)
         sheet.rectified.append((x0, y + LABEL_H, pair_w, pair_h))
