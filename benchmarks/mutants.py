@@ -1658,9 +1658,9 @@ MUTANTS = [
     ),
     dict(
         id='r5-cli-debug-static-not-drawn',
-        file=f'{PKG}/cli.py',
-        old='    top = draw_curves(images[0], used, rejected, thickness=2, static=static)',
-        new='    top = draw_curves(images[0], used, rejected, thickness=2)',
+        file=f'{PKG}/core/report/debug_sheet.py',
+        old='                            static=_scaled(left_out, pw / w))',
+        new='                            )',
         behaviour='--debug-image draws the curves left out for staying put in orange',
         tests=['test/test_static_curves.py::test_the_cli_says_what_it_left_out_and_draws_it'],
     ),

@@ -8,8 +8,9 @@ imports ROS, and every module belongs to a layer (a new module must be placed in
     2 core/checkerboard, core/lines   calibration evidence: chessboard images, straight lines
     3 core/estimation                 the MAP fit over all evidence, its uncertainty, the quality gate
     4 core/ros_data                   what ROS carries, without ROS: files, CameraInfo, images, maps
-    5 core (its __init__)             the public API: re-exports
-    6 cli, ros                        the two front ends: zeroshot-calib, the ROS node
+    5 core/report                     pictures for a user: the calibration report, refine's contact sheet
+    6 core (its __init__)             the public API: re-exports
+    7 cli, ros                        the two front ends: zeroshot-calib, the ROS node
 """
 import ast
 from pathlib import Path
@@ -23,8 +24,9 @@ LAYERS = {
     'core.checkerboard': 2, 'core.lines': 2,
     'core.estimation': 3,
     'core.ros_data': 4,
-    'core': 5,
-    'cli': 6, 'ros': 6,
+    'core.report': 5,
+    'core': 6,
+    'cli': 7, 'ros': 7,
     '': 0,  # zeroshot_calib_ros/__init__.py: the version, nothing else
 }
 ROS_PACKAGES = {'rclpy', 'rcl_interfaces', 'sensor_msgs', 'diagnostic_msgs', 'std_msgs', 'builtin_interfaces',

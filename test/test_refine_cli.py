@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+from pictures import sheet_panels
 from scenes import dense_rms, render
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import CameraCalibration, CameraSpec, solve_zero_shot
@@ -66,12 +67,14 @@ def test_refine_recovers_the_true_camera_and_writes_it(views, capsys, tmp_path):
     assert dense_rms(camera, TRUE) < 1.0 < dense_rms(zero_shot, TRUE)
     assert 0 < record['uncertainty_px'] < 5
     picture = cv2.imread(str(debug))
-    assert picture.shape[:2] == (360 + 180, 640)
-    # the views are grey: green pixels in the top half are the used curves drawn over the first
+    panels = sheet_panels(picture, 360 / 640)  # the contact sheet: a panel per view (test_report.py)
+    assert len(panels) == 3
+    # the views are grey: green pixels on the first panel are the used curves drawn over the first
     # image (at least one of its straight lines, ~100 px each), which a user checks by eye
-    top = picture[:360].astype(int)
+    x, y, w, h = panels[0]
+    top = picture[y:y + h, x:x + w].astype(int)
     green = (top[..., 1] > 150) & (top[..., 0] < 80) & (top[..., 2] < 80)
-    assert green.sum() > 300
+    assert green.sum() > 300 * (w / 640) ** 2
 
 
 def test_refine_text_output_says_what_it_decided(capsys, tmp_path):

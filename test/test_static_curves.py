@@ -10,6 +10,7 @@ import pytest
 
 import scenes
 from cli_run import run_main
+from pictures import sheet_panels
 from test_image_region import CIRCULAR, dense_error_px, render
 from zeroshot_calib_ros.core.estimation.refine import refine_from_images
 from zeroshot_calib_ros.core.lines.detect import Curve
@@ -180,9 +181,12 @@ def test_the_cli_says_what_it_left_out_and_draws_it(vehicle_frames, tmp_path, ca
     assert len(left_out) == 1 and "own body" in left_out[0], out
     assert int(left_out[0].split()[2]) >= 3
     canvas = cv2.imread(debug)
-    orange = np.all(np.abs(canvas[:H].astype(int) - (0, 140, 255)) <= 40, axis=2)
-    ys = np.nonzero(orange)[0]
-    assert len(ys) > 50 and np.median(ys) > 0.8 * H  # drawn where the bonnet is
+    panels = sheet_panels(canvas, H / W)  # the contact sheet: a panel per frame
+    assert len(panels) == len(vehicle_frames)
+    for x, y, w, h in panels:
+        orange = np.all(np.abs(canvas[y:y + h, x:x + w].astype(int) - (0, 140, 255)) <= 40, axis=2)
+        ys = np.nonzero(orange)[0]
+        assert len(ys) > 50 * (w / W) and np.median(ys) > 0.8 * h  # drawn where the bonnet is, in each
     status, out, err = run_main(['refine', *paths, '--circle-fov', '190', '--json'], capsys)
     # the same count in --json as in the text
     assert status == 0 and json.loads(out)['refinement']['curves_static'] == int(left_out[0].split()[2])

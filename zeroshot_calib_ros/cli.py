@@ -187,7 +187,7 @@ def _solve_spec(args):
     return spec_with_preset(args.preset, **{k: getattr(args, k, None) for k in SOLVE_SPEC_FIELDS})
 
 
-BATCH_INCOMPATIBLE = SOLVE_SPEC_FIELDS + ('preset', 'yaml', 'camera_name')
+BATCH_INCOMPATIBLE = SOLVE_SPEC_FIELDS + ('preset', 'yaml', 'camera_name', 'report')
 """`solve` options a --batch run cannot honour: the CSV gives each camera's spec and name."""
 
 
@@ -232,14 +232,25 @@ def _cmd_solve(args):
     warnings += _add_uncertainty(summary, spec, solution, args.fov_tolerance)
     warnings += _assumption_warnings(solution)
     summary['warning'] = warnings
+    report = None
+    if args.report:
+        from .core.estimation.uncertainty import zero_shot_uncertainty
+        from .core.report.calibration_report import ReportData
+        report = ReportData('solve', solution.camera, summary['model'], None, '', spec, args.fov_tolerance,
+                            zero_shot_uncertainty(spec, args.fov_tolerance, solution), summary['uncertainty_px'],
+                            summary['uncertainty'], balance=args.balance, fov_scale=args.fov_scale,
+                            warnings=warnings, camera_name=camera_name)
     if args.yaml:
         _save_calibration(calibration, args.yaml)
+    _write_report(args, report, [f'--yaml {args.yaml}'] if args.yaml else [])
     if args.json:
         print(json.dumps(summary))
     else:
         print(summary_text(summary) + '\n' + _uncertainty_line(summary, args.fov_tolerance))
         if args.yaml:
             print(f'wrote {args.yaml}')
+        if args.report:
+            print(f'wrote {args.report}')
     _print_warnings(warnings)
     return 0
 
@@ -484,6 +495,48 @@ def _check_output_image(path):
         raise CliError(f'-o {path}: cannot write image: it is a directory')
 
 
+def _check_png_output(path, option):
+    """One error line, before any work, when ``path`` cannot take a PNG picture."""
+    if os.path.isdir(path):
+        raise CliError(f'{option} {path}: it is a directory: allowed: a file name ending in .png')
+    ext = os.path.splitext(path)[1]
+    if ext.lower() != '.png':
+        raise CliError(f'{option} {path}: the picture is a PNG image: allowed: a file name ending in .png '
+                       f'(not {ext or "a name without an extension"})')
+    directory = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(directory):
+        raise CliError(f'{option} {path}: cannot write the picture: directory {directory} does not exist')
+
+
+def _write_png(path, image, option, written=()):
+    """``image`` written to ``path`` as a PNG, all or nothing (core/atomic_file.py); one error line
+    naming the option, and the files already written, when it cannot be."""
+    from .core.atomic_file import SaveError, write_atomically
+    done = f' ({", ".join(written)} written)' if written else ''
+    if os.path.splitext(path)[1].lower() != '.png':  # --debug-image: any format OpenCV writes
+        try:
+            if cv2.imwrite(path, image):
+                return
+        except cv2.error:
+            pass
+        raise CliError(f'{option} {path}: cannot write image{done}')
+    ok, data = cv2.imencode('.png', image, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    if not ok:
+        raise CliError(f'{option} {path}: cannot encode the picture{done}')
+    try:
+        write_atomically(path, data.tobytes())
+    except SaveError as exc:
+        raise CliError(f'{option} {exc}{done}') from None
+
+
+def _write_report(args, data, written=()):
+    """--report: the calibration report (core/report/calibration_report.py) of ``data``."""
+    if data is None or not getattr(args, 'report', None):
+        return
+    from .core.report.calibration_report import render_report
+    _write_png(args.report, render_report(data).image, '--report', written)
+
+
 def _read_image(path, finite=False):
     """core/file_input.read_image: (image, sha1 of the file); every refusal one CliError naming
     the file (a regular file, at most MAX_IMAGE_PIXELS, decoded completely)."""
@@ -617,27 +670,11 @@ def _refined_summary(result, spec, solution, args):
     return json_safe(summary), calibration
 
 
-def _debug_image(images, result, solution, args):
-    """The canvas (written by the caller once everything has succeeded): the first image with the curves used (green), rejected (red) and left out for staying put (orange), and below it the image
-    rectified with the zero-shot camera (left) and with the result (right)."""
-    from .core.lines.detect import draw_curves
-    curves = list(getattr(result, 'curves', None) or [])
-    used_mask = result.used if result.used is not None else np.zeros(len(curves), bool)
-    first = [c for c in curves if c.image in (0, None)]
-    used = [c for c, ok in zip(curves, used_mask) if ok and c.image in (0, None)]
-    rejected = [c for c in first if not any(c is u for u in used)]
-    static = [c for c in getattr(result, 'static_curves', None) or [] if c.image in (0, None)]
-    top = draw_curves(images[0], used, rejected, thickness=2, static=static)
-    height, width = top.shape[:2]
-    halves = []
-    P = new_camera_matrix(solution.camera, args.balance, args.fov_scale)  # one P: compare the straightness
-    for camera in (solution.camera, result.camera):
-        rect = Rectifier(camera, P=P).rectify(images[0])
-        rect = cv2.cvtColor(rect, cv2.COLOR_GRAY2BGR) if rect.ndim == 2 else rect[..., :3]
-        halves.append(cv2.resize(rect, (max(1, width // 2), max(1, height // 2)), interpolation=cv2.INTER_AREA))
-    bottom = np.hstack(halves)
-    bottom = np.pad(bottom, ((0, 0), (0, max(0, width - bottom.shape[1])), (0, 0)))
-    return np.vstack([top.astype(np.uint8), bottom[:, :width].astype(np.uint8)])
+def _debug_image(images, names, result, solution, args):
+    """The contact sheet of --debug-image (core/report/debug_sheet.py), written by the caller once
+    everything has succeeded."""
+    from .core.report.debug_sheet import render_debug_sheet
+    return render_debug_sheet(images, names, result, solution.camera, args.balance, args.fov_scale).image
 
 
 def _preset_circle_diameter(args):
@@ -705,7 +742,7 @@ def _cmd_refine(args):
     from .core.lines.image_region import combine_circles, find_image_region
     if args.debug_image:
         _check_output_image(args.debug_image)
-    images, seen = [], {}
+    images, names, seen = [], [], {}
     for path in args.images:
         key = os.path.realpath(path)
         if key in seen:
@@ -722,6 +759,7 @@ def _cmd_refine(args):
             raise CliError(f'{path} is {image.shape[1]}x{image.shape[0]}: allowed: images at least '
                            f'{MIN_REFINE_IMAGE_SIDE} px wide and high (lines to straighten need room)')
         images.append(image)
+        names.append(path)
     sizes = sorted({(im.shape[1], im.shape[0]) for im in images})
     if len(sizes) != 1:
         listed = ', '.join(f'{w}x{h}' for w, h in sizes)
@@ -774,12 +812,22 @@ def _cmd_refine(args):
             and not result.accepted:
         warnings.append(result.zero_shot_uncertainty.warning)
     summary['warning'] = warnings
-    canvas = _debug_image(images, result, solution, args) if args.debug_image else None
+    canvas = _debug_image(images, names, result, solution, args) if args.debug_image else None
+    report = None
+    if args.report:
+        from .core.report.calibration_report import ReportData
+        report = ReportData('refine', result.camera, summary['model'], result.accepted, result.reason, spec,
+                            args.fov_tolerance, result.uncertainty, summary['uncertainty_px'],
+                            getattr(result.uncertainty, 'reason', ''), result.zero_shot_camera, images[0],
+                            os.path.basename(names[0]), args.balance, args.fov_scale, warnings=warnings,
+                            camera_name=args.camera_name)
     if args.yaml:  # written only now: every step has succeeded
         _save_calibration(calibration, args.yaml)
-    if canvas is not None and not cv2.imwrite(args.debug_image, canvas):
-        raise CliError(f'--debug-image {args.debug_image}: cannot write image'
-                       + (f' (--yaml {args.yaml} was written)' if args.yaml else ''))
+    written = [f'--yaml {args.yaml}'] if args.yaml else []
+    if canvas is not None:
+        _write_png(args.debug_image, canvas, '--debug-image', written)
+        written.append(f'--debug-image {args.debug_image}')
+    _write_report(args, report, written)
     if args.json:
         print(json.dumps(summary))
     else:
@@ -791,6 +839,8 @@ def _cmd_refine(args):
         print(f"refined   {'yes' if result.accepted else 'no'}: {result.reason}")
         if args.yaml:
             print(f'wrote {args.yaml}')
+        if args.report:
+            print(f'wrote {args.report}')
     _print_warnings(warnings)
     return 0
 
@@ -873,7 +923,31 @@ def _print_calibrate_text(lines, summary, args):
     lines += [f'note      {n}' for n in summary['notes']]
     if args.yaml:
         lines.append(f'wrote {args.yaml}')
+    if args.report:
+        lines.append(f'wrote {args.report}')
     print('\n'.join(lines))
+
+
+def _calibrate_report(args, corners, used_views, camera, summary, **fields):
+    """The ReportData of `calibrate` (None without --report): the board's views under ``camera``,
+    the first used image for the preview when it can be read (not from a --corners file)."""
+    if not args.report:
+        return None
+    from .core.report.calibration_report import ReportData, board_views
+    image, name = None, ''
+    path = corners.names[used_views[0]] if len(used_views) else None
+    if path is not None and not args.corners and os.path.isfile(path):
+        try:
+            image, _ = _read_image(path)
+            name = os.path.basename(path)
+        except CliError:
+            image = None
+    if image is not None and (image.shape[1], image.shape[0]) != (camera.width, camera.height):
+        image, name = None, ''
+    return ReportData('calibrate', camera, summary['model'], image=image, image_name=name, balance=args.balance,
+                      fov_scale=args.fov_scale, board=board_views(corners, camera, used_views),
+                      warnings=summary['warning'], camera_name=args.camera_name,
+                      fov_tolerance_deg=args.fov_tolerance, **fields)
 
 
 def _cmd_calibrate(args):
@@ -921,8 +995,13 @@ def _cmd_calibrate(args):
         summary['notes'].append('the image corners are 90 degrees or more off-axis in the calibrated '
                                 f'model; {calibration.distortion_model} coefficients are fitted up to '
                                 '90 degrees and extrapolate beyond')
+    report = _calibrate_report(args, corners, list(result.views), solution.camera, summary, accepted=None,
+                               reason=f'{result.label} calibration (start: {result.init}), rms {result.rms_px:.3g} px: '
+                                      'no quality gate without the spec as evidence',
+                               spec=spec, uncertainty_reason=summary['uncertainty'])
     if args.yaml:
         _save_calibration(calibration, args.yaml)
+    _write_report(args, report, [f'--yaml {args.yaml}'] if args.yaml else [])
     _print_warnings(summary['warning'])
     if args.json:
         print(json.dumps(json_safe(summary)))
@@ -1025,8 +1104,13 @@ def _calibrate_with_spec(args, corners, views, spec, spec_warnings=()):
     })
     if views is not None and len(corners) > 1:
         summary['eps_all_px'] = reprojection_error(camera, corners).rms
+    report = _calibrate_report(args, corners, list(fit.views), camera, summary, accepted=fit.accepted,
+                               reason=fit.reason, spec=spec, uncertainty=fit.uncertainty,
+                               uncertainty_px=fit.uncertainty_px, uncertainty_reason=fit.uncertainty.reason,
+                               zero_shot_camera=fit.zero_shot_camera)
     if args.yaml:
         _save_calibration(calibration, args.yaml)
+    _write_report(args, report, [f'--yaml {args.yaml}'] if args.yaml else [])
     _print_warnings(summary['warning'])
     if args.json:
         print(json.dumps(json_safe(summary)))
@@ -1139,6 +1223,10 @@ def _add_circle_arguments(parser, refine=False):
                         help='circular fisheye: field of view across the image circle (deg)')
 
 
+REPORT_HELP = ("write a picture of the calibration (PNG): the lens curve against the spec's FOVs, the 1-sigma "
+               'error over the image, a rectified preview{extra}, and the verdict (docs/report.md)')
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog='zeroshot-calib',
@@ -1157,6 +1245,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_fov_tolerance_argument(solve)
     solve.add_argument('--json', action='store_true', help='print one JSON object')
     solve.add_argument('--yaml', metavar='FILE', help='write a camera_info_manager calibration file')
+    solve.add_argument('--report', metavar='OUT.png',
+                       help=REPORT_HELP.format(extra=' (of a synthetic ruled cube)'))
     solve.add_argument('--batch', metavar='CSV',
                        help='cameras, one per row: name,width,height,hfov,vfov,dfov (empty cells '
                             'allowed), or the columns a header row names (those, circle_diameter, '
@@ -1208,8 +1298,10 @@ def build_parser() -> argparse.ArgumentParser:
     refine.add_argument('--json', action='store_true', help='print one JSON object')
     refine.add_argument('--yaml', metavar='FILE', help='write a camera_info_manager calibration file')
     refine.add_argument('--debug-image', metavar='OUT.png',
-                        help='write the curves used (green) and rejected (red), and the image rectified '
+                        help='write a contact sheet of every image with its curves: used (green), rejected (red), '
+                             'left out for staying put (orange), with the verdict, and the first image rectified '
                              'before (zero-shot) and after')
+    refine.add_argument('--report', metavar='OUT.png', help=REPORT_HELP.format(extra=' of the first image'))
     refine.add_argument('--progress', action='store_true',
                         help='report progress on stderr (default: when stderr is a terminal, without --json)')
     refine.set_defaults(run=_cmd_refine)
@@ -1242,6 +1334,8 @@ def build_parser() -> argparse.ArgumentParser:
     calib.add_argument('--camera-name', default='camera', help='camera_name in the YAML file')
     calib.add_argument('--json', action='store_true', help='print one JSON object')
     calib.add_argument('--yaml', metavar='FILE', help='write a camera_info_manager calibration file')
+    calib.add_argument('--report', metavar='OUT.png',
+                       help=REPORT_HELP.format(extra=', the board coverage and the reprojection RMS of each image'))
     calib.set_defaults(run=_cmd_calibrate)
 
     ev = sub.add_parser('evaluate', help="the paper's evaluation (Tables 3 and 4 layouts) on chessboard "
@@ -1273,6 +1367,8 @@ def _check_options(args):
         if not (math.isfinite(value) and (low <= value if low_included else low < value) and value <= high):
             allowed = '0 to 1' if name == 'balance' else 'greater than 0 (finite)'
             raise CliError(f'--{name.replace("_", "-")}: {name} = {value!r} is invalid: allowed: {allowed}')
+    if getattr(args, 'report', None) is not None:
+        _check_png_output(args.report, '--report')
     path = getattr(args, 'yaml', None)
     if path is not None:
         ext = os.path.splitext(path)[1]

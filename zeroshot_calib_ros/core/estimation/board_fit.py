@@ -290,7 +290,8 @@ def _uncertainty(top: Problem, top_x, camera, order) -> Uncertainty:
     bias_rms = float(np.sqrt(np.nanmean(np.sum(bias * bias, axis=1))))
     total = math.hypot(u.rms_px, bias_rms)
     return Uncertainty(total, f'{u.reason}, order {order} of {layout.order}: {bias_rms:.3g} px from the '
-                       'highest order added', covariance=u.covariance, names=u.names)
+                       'highest order added', covariance=u.covariance, names=u.names, layout=layout, x=x,
+                       spread_cameras=((layout.camera(top_x), 1.0),))
 
 
 def _corners_at(term: CornerTerm, camera):

@@ -191,6 +191,14 @@ class Refinement:
     """The curves given, in order (``used`` is over them): what a debug image draws."""
     warnings: List[str] = field(default_factory=list)
     zero_shot_uncertainty: Optional[Uncertainty] = field(default=None, repr=False)
+    refined_uncertainty: Optional[Uncertainty] = field(default=None, repr=False)
+    """The fitted camera's error bar with its covariance (None when no fit was made): the map of
+    ``uncertainty.uncertainty_map``; ``uncertainty_px`` is its ``rms_px`` when accepted."""
+
+    @property
+    def uncertainty(self) -> Optional[Uncertainty]:
+        """The error bar of ``camera``: the refined camera's when accepted, else zero-shot's."""
+        return self.refined_uncertainty if self.accepted else self.zero_shot_uncertainty
 
 
 def zero_shot_camera(spec: CameraSpec, width: int, height: int, solution=None) -> KannalaBrandtCamera:
@@ -346,6 +354,7 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     result.fov_residuals_deg = _fov_residuals(fov, circle if states_fov else None, refined)
     ref_u, u_layout, u_x = _fit_uncertainty(fit)
     result.refined_uncertainty_px = ref_u.rms_px
+    result.refined_uncertainty = ref_u
     if REZOOM:
         # the zoom from the FOVs alone (the lines' say on it is the model's artefact): after the
         # checks above, which judge the fit as it is
@@ -525,7 +534,7 @@ def _fit_uncertainty(fit: LineFit):
     total = math.hypot(u.rms_px, bias_rms)
     scale = (total / u.rms_px) ** 2 if u.rms_px > 0 else 1.0
     u = Uncertainty(total, f'{u.reason}, order {fit.order} of {layout.order}: {bias_rms:.3g} px from the '
-                    f'highest order added', covariance=u.covariance * scale, names=u.names)
+                    f'highest order added', covariance=u.covariance * scale, names=u.names, layout=layout, x=x)
     return u, layout, x
 
 

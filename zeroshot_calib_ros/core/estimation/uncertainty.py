@@ -83,6 +83,16 @@ class Uncertainty:
     """Of ``rms_px``, the part from the spread of real lens shapes a spec of one constraint
     leaves open (``lens_shape_spread``; None: the spec pins the shape); the rest,
     sqrt(rms_px^2 - lens_shape_px^2), is the FOV tolerance's and the priors'."""
+    layout: object = field(default=None, repr=False)
+    """The parameter layout ``covariance`` is over, and ``x`` the solution in it: with them the
+    error can be mapped pixel by pixel (``uncertainty_map``)."""
+    x: Optional[np.ndarray] = field(default=None, repr=False)
+    spread_cameras: Tuple = field(default=(), repr=False)
+    """(camera, weight) pairs whose displacement from the solution (after the best rotation) adds
+    to the error in quadrature, weighted: the lens shapes of real lenses of a single FOV
+    (``lens_shape_spread``), a lower order's bias (its distance from the highest order's camera)."""
+    circle_radius: Optional[float] = None
+    """When set, ``rms_px`` is over the image circle of this radius (px, centred on the image)."""
 
     @property
     def fov_part_px(self) -> Optional[float]:
@@ -379,7 +389,8 @@ def problem_uncertainty(problem: Problem, x, jacobian: Optional[np.ndarray] = No
     if not math.isfinite(rms):
         return Uncertainty(None, 'no grid pixel has a ray under the camera', covariance=cov,
                            names=tuple(problem.layout.names))
-    return Uncertainty(rms, reason, covariance=cov, names=tuple(problem.layout.names))
+    return Uncertainty(rms, reason, covariance=cov, names=tuple(problem.layout.names), layout=problem.layout,
+                       x=np.asarray(x, dtype=float).copy(), circle_radius=circle_radius)
 
 
 def zero_shot_problem(spec: CameraSpec, fov_tolerance_deg: float = FOV_TOLERANCE_DEG, solution=None):
@@ -422,16 +433,23 @@ def lens_shape_spread(spec: CameraSpec, solution, grid=GRID) -> Tuple[Optional[f
 
     Cameras, not a linearisation: the spread is far from small where rectilinear wide-angles
     and fisheyes share a FOV, and the displacement of a lens law is not linear in its a."""
+    spread, shape, _ = _lens_shape_spread(spec, solution, grid)
+    return spread, shape
+
+
+def _lens_shape_spread(spec: CameraSpec, solution, grid=GRID):
+    """``lens_shape_spread`` and the cameras it measured the spread with (those whose
+    displacement could be imaged)."""
     shape = single_constraint_shape(spec, solution)
     if shape is None:
-        return None, None
+        return None, None, []
     c = spec_constraints(spec)[0]
     camera = solution.camera
     law = getattr(camera.projection, 'law', camera.projection)
     pixels = pixel_grid(camera.width, camera.height, grid, image_circle_radius(spec))
     rays = camera.unproject(pixels)
     rays = rays[np.all(np.isfinite(rays), axis=1)]
-    squares = []
+    squares, cameras = [], []
     for a_table in (shape.a_low, shape.a_high):
         a = a_for_law(replace(shape, a=a_table), law, c.radius, c.half_angle, spec.diagonal / 2.0,
                       math.pi if law.name in WIDE_LAWS else math.radians(89.9))
@@ -445,9 +463,10 @@ def lens_shape_spread(spec: CameraSpec, solution, grid=GRID) -> Tuple[Optional[f
         if not np.any(seen):
             continue
         squares.append(float(np.mean(np.sum(d[seen] ** 2, axis=1))))
+        cameras.append(other)
     if not squares:
-        return None, shape
-    return math.sqrt(sum(squares) / len(squares)), shape
+        return None, shape, []
+    return math.sqrt(sum(squares) / len(squares)), shape, cameras
 
 
 SCALE_PARAMETERS = ('f', 'cx', 'cy')
@@ -471,7 +490,8 @@ def _shape_held_uncertainty(problem: Problem, x, circle_radius: Optional[float])
     if not math.isfinite(rms):
         return Uncertainty(None, 'no grid pixel has a ray under the camera', covariance=cov, names=names)
     return Uncertainty(rms, reason + ' of f and the principal point (the lens shape held)', covariance=cov,
-                       names=names)
+                       names=names, layout=problem.layout, x=np.asarray(x, dtype=float).copy(),
+                       circle_radius=circle_radius)
 
 
 def zero_shot_uncertainty(spec: CameraSpec, fov_tolerance_deg: float = FOV_TOLERANCE_DEG,
@@ -483,7 +503,7 @@ def zero_shot_uncertainty(spec: CameraSpec, fov_tolerance_deg: float = FOV_TOLER
     of a spec with one constraint is the solution's ``assumption``)."""
     solution = solve_zero_shot(spec, 'auto') if solution is None else solution
     problem, x = zero_shot_problem(spec, fov_tolerance_deg, solution)
-    spread, shape = lens_shape_spread(spec, solution)
+    spread, shape, spread_cameras = _lens_shape_spread(spec, solution)
     if shape is None:
         result = problem_uncertainty(problem, x)
     else:
@@ -496,6 +516,7 @@ def zero_shot_uncertainty(spec: CameraSpec, fov_tolerance_deg: float = FOV_TOLER
             fov_part = result.rms_px
             result.rms_px = math.hypot(fov_part, spread)
             result.lens_shape_px = spread
+            result.spread_cameras = tuple((c, 1.0 / len(spread_cameras)) for c in spread_cameras)
             result.reason += (f'; with the spread of real lens shapes of that FOV ({spread:.3g} px; '
                               f'{fov_part:.3g} px from the FOV tolerance and the priors)')
     if result.rms_px is None:
@@ -509,3 +530,56 @@ def zero_shot_uncertainty(spec: CameraSpec, fov_tolerance_deg: float = FOV_TOLER
                           f'of {fov_tolerance_deg:g} degrees; more precise FOVs, a dfov, or line or '
                           'checkerboard evidence would pin it')
     return result
+
+
+@dataclass
+class UncertaintyMap:
+    """The 1-sigma pixel displacement at each pixel of a grid over the image: where the
+    calibration can be trusted and where less (``uncertainty_map``)."""
+
+    width: int
+    height: int
+    pixels: np.ndarray
+    """(rows, cols, 2) grid pixels, (0, 0) to (W, H) inclusive."""
+    sigma_px: np.ndarray
+    """(rows, cols) the 1-sigma displacement (image pixels, after the best rotation of the camera);
+    NaN where a pixel has no ray, or outside the image circle the error bar is stated over."""
+
+    @property
+    def rms_px(self) -> float:
+        """RMS of ``sigma_px`` over the grid pixels that have one: ``Uncertainty.rms_px`` on the
+        same grid."""
+        seen = np.isfinite(self.sigma_px)
+        return float(np.sqrt(np.mean(self.sigma_px[seen] ** 2))) if np.any(seen) else float('nan')
+
+
+def uncertainty_map(u: Uncertainty, grid=GRID) -> Optional[UncertaintyMap]:
+    """The pixel-by-pixel form of ``u`` on a grid[0] x grid[1] grid: at each pixel the root of
+    trace(A_i Sigma A_i^T), A_i its rows of the pixel Jacobian off the rotations (as ``pixel_rms``),
+    plus, in quadrature, the weighted squared displacements of ``u.spread_cameras`` there (the lens
+    shapes a single FOV leaves open, a lower order's bias). Its RMS over ``GRID`` is ``u.rms_px``
+    (to the rounding of the shape spread's rotation, found per grid). None when ``u`` has no
+    covariance or no layout (no error bar, or one not from a fit)."""
+    if u.rms_px is None or u.covariance is None or u.layout is None or u.x is None:
+        return None
+    layout, x = u.layout, np.asarray(u.x, dtype=float)
+    camera = layout.camera(x)
+    cols, rows = grid
+    pixels = pixel_grid(camera.width, camera.height, grid).reshape(rows, cols, 2)
+    sigma2 = np.full((rows, cols), np.nan)
+    A, rays = pixel_jacobian(layout, x, grid, True, circle_radius=u.circle_radius)
+    if len(rays) == 0:
+        return UncertaintyMap(camera.width, camera.height, pixels, sigma2)
+    # pixel_jacobian keeps the grid pixels with a finite ray and Jacobian: find them again by
+    # their projection (the grid is regular)
+    at = camera.project(rays)
+    ci = np.rint(at[:, 0] / camera.width * (cols - 1)).astype(int)
+    ri = np.rint(at[:, 1] / camera.height * (rows - 1)).astype(int)
+    inside = (ci >= 0) & (ci < cols) & (ri >= 0) & (ri < rows)
+    A3 = A.reshape(-1, 2, x.size)
+    variance = np.einsum('nij,jk,nik->n', A3, u.covariance, A3)
+    for other, weight in u.spread_cameras:
+        d = displacement(camera, other, rays)
+        variance = variance + weight * np.sum(d * d, axis=1)
+    sigma2[ri[inside], ci[inside]] = np.maximum(variance[inside], 0.0)
+    return UncertaintyMap(camera.width, camera.height, pixels, np.sqrt(sigma2))
