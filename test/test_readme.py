@@ -333,6 +333,8 @@ def test_the_calibration_commands_run_as_written_on_the_shared_images(tmp_path):
 
 
 CHECKED = {
+    # run by test_report.py::test_the_concrete_commands_of_docs_report_md_run_and_write_their_pictures
+    'zeroshot-calib solve --width 800 --height 503 --hfov 180.81 --vfov 103.52 --report report_solve.png',
     SAMPLE_COMMAND,
     ONE_FOV_COMMAND,
     REFINE_COMMAND,
