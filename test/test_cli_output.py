@@ -5,6 +5,7 @@ warnings of a calibration file read, and optional tab completion.
 
 (`refine` / `calibrate` whose result is not adopted, exit status 3 and the file comment:
 test_refine_cli.py and test_calibrate_checks.py.)"""
+import io
 import json
 import os
 import subprocess
@@ -178,6 +179,32 @@ def test_progress_is_shown_on_a_terminal_and_silent_on_a_pipe_or_with_json(comma
     assert err.split('\n')[1:] in ([''], [])  # the line is ended once, before anything else is said
     assert [line for line in text_on_terminal.splitlines() if not line.startswith('time ')] == \
         [line for line in text.splitlines() if not line.startswith('time ')]
+
+
+@pytest.mark.parametrize('command', COMMANDS)
+def test_the_progress_line_ends_before_the_result_and_the_warnings(command, corners_file, monkeypatch):
+    """On a terminal stdout and stderr share the screen: the result and any warning start on a
+    line of their own, never after the progress line (a spec that calibrate warns about: hfov and
+    vfov 10 degrees off the lens's)."""
+    spec = spec_of(TRUE)
+    argv = [a for a in COMMANDS[command](corners_file)]
+    argv[argv.index('--hfov') + 1] = repr(spec.hfov - 10)
+    argv[argv.index('--vfov') + 1] = repr(spec.vfov + 10)
+    screen = io.StringIO()
+    monkeypatch.setattr(cli, '_is_terminal', lambda stream: True)
+    monkeypatch.setattr(sys, 'stdout', screen)
+    monkeypatch.setattr(sys, 'stderr', screen)
+    status = cli.main(argv)
+    text = screen.getvalue()
+    assert status in (0, 3) and '\r' in text, text
+    assert command == 'evaluate' or 'zeroshot-calib: warning: ' in text, text  # evaluate warns of nothing here
+    for line in text.split('\n'):
+        shown = line.split('\r')[-1]  # what a terminal shows of a line rewritten in place
+        if '\r' in line:
+            assert shown.startswith(f'zeroshot-calib: {command}: ') and 'warning' not in shown, line
+            assert not any(word in shown for word in ('data ', 'camera ', 'Table ')), line
+    first = 'data     ' if command == 'evaluate' else 'camera    '
+    assert f'\n{first}' in text
 
 
 def test_calibrate_reports_each_image_searched_for_the_board(tmp_path, capsys):

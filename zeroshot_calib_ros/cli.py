@@ -172,6 +172,8 @@ def _fit_warnings(solution, calibration, fit):
 
 
 def _print_warnings(warnings, where=''):
+    if warnings:
+        _end_progress()
     for warning in warnings:
         print(f'zeroshot-calib: warning: {where}{warning}', file=sys.stderr, flush=True)
 
@@ -736,7 +738,11 @@ def _is_terminal(stream) -> bool:
 class _ProgressLine:
     """Progress on a stream: one line rewritten in place (``\r``) on a terminal, a line per report
     elsewhere (a log file has no use for carriage returns). ``refine``, ``calibrate`` and
-    ``evaluate`` report through it (``_progress_line``)."""
+    ``evaluate`` report through it (``_progress_line``); any other output first ends the line
+    (``_end_progress``)."""
+
+    active = None
+    """The line being rewritten in place, if any."""
 
     def __init__(self, stream, command):
         self.stream = stream
@@ -749,6 +755,7 @@ class _ProgressLine:
         if self.in_place:
             self.stream.write('\r' + text.ljust(self.width))
             self.width = len(text)
+            _ProgressLine.active = self
         else:
             self.stream.write(text + '\n')
         self.stream.flush()
@@ -758,6 +765,15 @@ class _ProgressLine:
             self.stream.write('\n')
             self.stream.flush()
             self.width = 0
+        if _ProgressLine.active is self:
+            _ProgressLine.active = None
+
+
+def _end_progress() -> None:
+    """End the progress line being rewritten in place, if any, so that what follows (a warning, the
+    result) starts on a line of its own; the next report starts a new progress line."""
+    if _ProgressLine.active is not None:
+        _ProgressLine.active.close()
 
 
 def _progress_line(args, command):
@@ -928,6 +944,7 @@ def _corner_set(args, single=None, progress=None):
             raise CliError('no input: give chessboard images or --corners FILE')
         corners = detect_corners(paths, parse_board(args.board, args.square), args.skip_missing, progress)
         if corners.missing:
+            _end_progress()
             print(f'zeroshot-calib: warning: board {corners.board.size} not found in '
                   f'{len(corners.missing)} of {len(paths)} images, left out: '
                   f'{", ".join(os.path.basename(p) for p in corners.missing)}', file=sys.stderr)
@@ -995,6 +1012,7 @@ def _calibrate(args, progress):
     if progress is not None:
         progress(f'fitting FC_eq.d. to {len(corners) if views is None else len(views)} image(s)')
     result = calibrate(corners, 'fc+zs' if spec is not None else 'fc', views, spec, principal_point)
+    _end_progress()
     if not result.ok:
         raise CliError(f'calibration failed: {result.error}')
     solution = as_solution(result, spec)
@@ -1099,6 +1117,7 @@ def _calibrate_with_spec(args, corners, views, spec, spec_warnings=(), progress=
     if not (args.fov_tolerance > 0 and math.isfinite(args.fov_tolerance)):
         raise CliError(f'--fov-tolerance {args.fov_tolerance:g} is invalid: allowed: degrees, greater than 0')
     fit = fit_board(corners, spec, views, fov_tolerance_deg=args.fov_tolerance, progress=progress)
+    _end_progress()
     camera = fit.camera
     if args.distortion_model == 'equidistant':
         D, fit_error = np.asarray(camera.D, float), 0.0  # a Kannala-Brandt camera: its D is exact
@@ -1234,6 +1253,7 @@ def _evaluate(args, progress):
         name = os.path.basename(os.path.dirname(os.path.abspath(corners.names[0]))) or 'camera'
     result = evaluate(corners, spec, shots=args.shots, runs=runs, name=name, spec_source=spec_source,
                       reference=reference, reference_source=reference_source, progress=progress)
+    _end_progress()
     if args.json:
         print(json.dumps(json_safe(evaluation_to_dict(result))))
     else:
