@@ -8,6 +8,7 @@ test_refine_cli.py and test_calibrate_checks.py.)"""
 import io
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -149,6 +150,23 @@ COMMANDS = {
 }
 
 
+def same_result(a, b, key=None):
+    """The same record: the same keys, texts and flags, numbers to 1e-4 relative. On OpenCV 4.6
+    (Ubuntu 24.04's) two runs of the same fit differ, with or without progress: the board fit's
+    number of evaluations (48 against 41 here), its error bar by 1e-5 relative, and whether
+    evaluate's FC_eq.d.+ZS stops at its evaluation limit (a note). Run time, evaluation counts and
+    notes are not compared."""
+    if key in ('seconds', 'evaluations', 'notes'):
+        return True
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(same_result(a[k], b[k], k) for k in a)
+    if isinstance(a, list):
+        return isinstance(b, list) and len(a) == len(b) and all(same_result(x, y) for x, y in zip(a, b))
+    if isinstance(a, float) and isinstance(b, (int, float)) and not isinstance(b, bool):
+        return a == pytest.approx(b, rel=1e-4, abs=1e-9)
+    return a == b
+
+
 @pytest.mark.parametrize('command', COMMANDS)
 def test_progress_is_shown_on_a_terminal_and_silent_on_a_pipe_or_with_json(command, corners_file, capsys,
                                                                           monkeypatch):
@@ -161,12 +179,7 @@ def test_progress_is_shown_on_a_terminal_and_silent_on_a_pipe_or_with_json(comma
     status, shown, err = run_main(argv + ['--json', '--progress'], capsys)
     steps = [line for line in err if line.startswith(f'zeroshot-calib: {command}: ')]
     assert status == 0 and len(steps) >= 2 and not any('\r' in line for line in err), err
-    drop = ('seconds',)  # evaluate's run time
-
-    def same(a, b):
-        return {k: v for k, v in json.loads(a).items() if k not in drop} == \
-            {k: v for k, v in json.loads(b).items() if k not in drop}
-    assert same(shown, quiet)
+    assert same_result(json.loads(shown), json.loads(quiet))
     status, text, err = run_main(argv, capsys)
     assert status == 0 and not any(line.startswith(f'zeroshot-calib: {command}:') for line in err)
     monkeypatch.setattr(cli, '_is_terminal', lambda stream: True)
@@ -177,8 +190,7 @@ def test_progress_is_shown_on_a_terminal_and_silent_on_a_pipe_or_with_json(comma
     assert status == 0
     assert err.startswith(f'\rzeroshot-calib: {command}: ') and err.count('\r') >= 2, err
     assert err.split('\n')[1:] in ([''], [])  # the line is ended once, before anything else is said
-    assert [line for line in text_on_terminal.splitlines() if not line.startswith('time ')] == \
-        [line for line in text.splitlines() if not line.startswith('time ')]
+    assert labels(text_on_terminal) == labels(text)
 
 
 @pytest.mark.parametrize('command', COMMANDS)
@@ -205,6 +217,13 @@ def test_the_progress_line_ends_before_the_result_and_the_warnings(command, corn
             assert not any(word in shown for word in ('data ', 'camera ', 'Table ')), line
     first = 'data     ' if command == 'evaluate' else 'camera    '
     assert f'\n{first}' in text
+
+
+def labels(text):
+    """Each line of a text output with its numbers blanked (they move in the last digits between
+    runs on OpenCV 4.6), but its time and note lines (see same_result)."""
+    return [re.sub(r'-?\d+(\.\d+)?(e-?\d+)?', '#', line) for line in text.splitlines()
+            if not line.startswith(('time ', 'note '))]
 
 
 def test_calibrate_reports_each_image_searched_for_the_board(tmp_path, capsys):
