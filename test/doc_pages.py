@@ -7,7 +7,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 PAGES = ['README.md', 'docs/cli.md', 'docs/ros.md', 'docs/library.md', 'docs/accuracy.md', 'docs/solver.md',
          'docs/calibration.md', 'docs/performance.md', 'docs/development.md', 'docs/architecture.md',
-         'docs/camera_info_model.md', 'docs/report.md']
+         'docs/camera_info_model.md', 'docs/report.md', 'docs/cli_output.md']
 """Every user page, README first; a new page under docs/ must be added here
 (test_readme.py::test_every_docs_page_is_checked)."""
 

@@ -1,6 +1,7 @@
 """`zeroshot-calib calibrate` never gives a confident wrong answer: a spec the corners contradict is
-not adopted (nor called agreeing), duplicate views count once, the board's square size is checked,
-and a plumb_bob file is never written for a lens plumb_bob cannot represent.
+not adopted (nor called agreeing; exit status 3, and the file written says so), duplicate views
+count once, the board's square size is checked, a plumb_bob file is never written for a lens
+plumb_bob cannot represent, and the rectified camera P it writes keeps the scene centred.
 
 The real-data tests use ../shared/data/ros_fisheye_800x503 (a lens of about 180 x 104 degrees, f
 about 290-305 px; ZEROSHOT_SHARED_DATA may name another copy of ../shared/data) and skip, saying
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 
 from cli_run import run_main
+from zeroshot_calib_ros.core import CameraCalibration
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get('ZEROSHOT_SHARED_DATA', REPO.parent / 'shared' / 'data')) / 'ros_fisheye_800x503'
@@ -26,9 +28,13 @@ RIGHT_SPEC = ['--hfov', '180.8', '--vfov', '103.5']
 
 
 
-def calibrate_json(capsys, *args):
-    status, out, err = run_main(['calibrate', *args, '--json'], capsys)
-    assert status == 0, err
+NOT_ADOPTED = 3
+"""The documented exit status of a calibrate whose board fit was not adopted (--help, README)."""
+
+
+def calibrate_json(capsys, *args, status=0):
+    got, out, err = run_main(['calibrate', *args, '--json'], capsys)
+    assert got == status, err
     return json.loads(out), err
 
 
@@ -55,10 +61,12 @@ def test_the_right_spec_on_one_real_view_is_adopted_and_agrees(capsys):
 def test_a_spec_the_corners_contradict_is_never_accepted_nor_said_to_agree(tmp_path, capsys, spec):
     """A 60 x 40 degree spec (or 180.8 x 10) on one view of the 180-degree lens: not accepted, the
     JSON's warning and the text say the corners contradict the spec, no error bar is claimed for
-    the camera written (the spec it comes from is contradicted), exit 0 as any refused result
-    (`accepted: false`, the zero-shot camera written, as the gate's refusals)."""
+    the camera written (the spec it comes from is contradicted), exit status 3 as any refused result
+    (`accepted: false`, the zero-shot camera written, as the gate's refusals), and the file and one
+    stderr line say that it holds the zero-shot camera."""
     out_yaml = tmp_path / 'camera.yaml'
-    record, err = calibrate_json(capsys, str(DATA / 'left-0000.png'), *spec, '--yaml', str(out_yaml))
+    record, err = calibrate_json(capsys, str(DATA / 'left-0000.png'), *spec, '--yaml', str(out_yaml),
+                                 status=NOT_ADOPTED)
     assert record['accepted'] is False
     assert record['fit']['spec_agrees'] is False
     assert any('contradict' in w for w in record['warning']), record['warning']
@@ -66,8 +74,14 @@ def test_a_spec_the_corners_contradict_is_never_accepted_nor_said_to_agree(tmp_p
     assert 'contradict' in record['reason']
     assert record['uncertainty_px'] is None
     assert out_yaml.is_file()
+    first = out_yaml.read_text().splitlines()[0]
+    assert first.startswith('# board fit not adopted: the corners contradict the spec')
+    assert first.endswith('; this is the zero-shot camera from the spec')
+    notices = [line for line in err if line.startswith('zeroshot-calib: board fit not adopted: ')]
+    assert len(notices) == 1 and 'contradict' in notices[0]
+    assert notices[0].endswith(f'{out_yaml} holds the zero-shot camera from the spec (exit status 3)')
     status, out, _ = run_main(['calibrate', str(DATA / 'left-0000.png'), *spec], capsys)
-    assert status == 0
+    assert status == NOT_ADOPTED
     assert 'agrees' not in spec_line(out) and 'DISAGREES' in spec_line(out)
     assert next(x for x in out.splitlines() if x.startswith('method')).startswith('method    zero-shot kept')
     assert 'error bar -' in out
@@ -134,6 +148,30 @@ def test_plumb_bob_is_refused_for_a_180_degree_lens_and_nothing_is_written(tmp_p
     assert not out_yaml.exists()
 
 
+def test_a_board_fit_not_adopted_is_said_in_an_ini_file_its_readers_skip(tmp_path, capsys):
+    """A lens of about 75 degrees with a spec its corners contradict (40 x 25 degrees), written as
+    INI (plumb_bob): exit status 3, the file's first line a # comment saying it holds the zero-shot
+    camera, which camera_calibration_parsers' INI reader skips (lines starting with '#'; our
+    reader follows it): the file loads as the zero-shot camera of the spec."""
+    from test_board_fit import board_views
+    from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
+    narrow = KannalaBrandtCamera(520.0, 520.0, 402.0, 248.0, 800, 500, [0.02, -0.01, 0.0, 0.0])
+    corners, _ = board_views(narrow, 3, seed=4, distance=(0.3, 0.5), noise=0.2)
+    corners.save(str(tmp_path / 'narrow.json'))
+    out_ini = tmp_path / 'camera.ini'
+    record, err = calibrate_json(capsys, '--corners', str(tmp_path / 'narrow.json'), '--hfov', '40', '--vfov', '25',
+                                 '--distortion-model', 'plumb_bob', '--yaml', str(out_ini), status=NOT_ADOPTED)
+    assert record['accepted'] is False
+    lines = out_ini.read_text().splitlines()
+    assert lines[0].startswith('# board fit not adopted: ') and lines[0].endswith('zero-shot camera from the spec')
+    assert lines[1] == '# Camera intrinsics'  # then camera_calibration_parsers' own layout
+    loaded = CameraCalibration.load(str(out_ini))
+    assert loaded.distortion_model == 'plumb_bob'
+    np.testing.assert_allclose(loaded.K, record['K'], rtol=1e-12)
+    np.testing.assert_allclose(loaded.D, record['D'], rtol=1e-12)
+    assert any(line.startswith('zeroshot-calib: board fit not adopted: ') for line in err)
+
+
 def test_plumb_bob_where_it_can_represent_the_lens_reports_a_real_fit_error(tmp_path, capsys):
     """A lens of about 75 degrees (no spec, and with its spec as evidence): plumb_bob stays allowed
     and its fit error is a number."""
@@ -194,3 +232,72 @@ def test_the_contradiction_statistic_is_the_likelihood_ratio_against_its_chi2_qu
     assert fov.sigma == 1.0  # the MAP's own FOV term is left as it was
     contradicted = got > threshold
     assert contradicted == (ratio == 40.0 or n == 1)
+
+
+# -- 6: the rectified camera P -----------------------------------------------------------------------
+
+def rectified_pixel(calibration, pixel):
+    """Where the raw image's ``pixel`` lands in the image rectified with the file's P (R = I)."""
+    ray = calibration.camera().unproject(np.asarray(pixel, float))
+    p = calibration.P[:, :3] @ (ray / ray[2])
+    return p[:2] / p[2]
+
+
+@needs_data
+@pytest.mark.parametrize('spec', [[], RIGHT_SPEC], ids=['no-spec', 'spec-as-evidence'])
+def test_P_is_centred_on_the_calibrated_principal_point_and_keeps_the_scene_centred(tmp_path, capsys, spec):
+    """Ten images of the shared 180-degree lens, whose principal point is about 20 px below the
+    image centre (the authors' ost.yaml: cy 273.9 in 503 rows). P is written as ROS
+    camera_calibration writes a fisheye's: its principal point is K's (P used to be centred on the
+    mean of the undistorted edge midpoints, which put it at (279, 386) for the FC_eq.d. camera:
+    image_proc showed an off-centre view). So the raw image's centre lands within a few px of the
+    rectified image's centre: the scene stays where it was."""
+    out_yaml = tmp_path / 'camera.yaml'
+    calibrate_json(capsys, str(DATA / 'left-000*.png'), *spec, '--yaml', str(out_yaml))
+    calibration = CameraCalibration.load(str(out_yaml))
+    K, P = calibration.K, calibration.P
+    np.testing.assert_allclose(P[:2, 2], K[:2, 2], atol=1e-9)
+    centre = np.array([calibration.width / 2, calibration.height / 2])
+    assert abs(P[0, 2] - centre[0]) < 5 and abs(P[1, 2] - centre[1]) < 25, P  # K's own offset: ~20 px in y
+    assert np.linalg.norm(rectified_pixel(calibration, centre) - centre) < 6
+
+
+@pytest.mark.parametrize('spec', [False, True], ids=['no-spec', 'spec-as-evidence'])
+def test_P_of_a_synthetic_off_centre_wide_lens_is_centred_on_its_principal_point(tmp_path, capsys, spec):
+    """Four views of a 171 x 100 degree lens 6 px off the centre of its 800 x 500 image (OpenCV's
+    rule would put P's principal point at x = 905, outside the image): P's principal point is the
+    calibrated K's, and the raw image's centre stays within a few px of the rectified image's."""
+    from test_board_fit import TRUTH, board_views, true_spec
+    corners, _ = board_views(TRUTH, 4, seed=3, noise=0.2)
+    corners.save(str(tmp_path / 'corners.json'))
+    flags = []
+    if spec:
+        fovs = true_spec()
+        flags = ['--hfov', repr(fovs.hfov), '--vfov', repr(fovs.vfov)]
+    out_yaml = tmp_path / 'camera.yaml'
+    got, out, err = run_main(['calibrate', '--corners', str(tmp_path / 'corners.json'), *flags, '--yaml',
+                              str(out_yaml), '--json'], capsys)
+    assert got in (0, NOT_ADOPTED), err
+    calibration = CameraCalibration.load(str(out_yaml))
+    np.testing.assert_allclose(calibration.P[:2, 2], calibration.K[:2, 2], atol=1e-9)
+    centre = np.array([400.0, 250.0])
+    assert np.linalg.norm(rectified_pixel(calibration, centre) - centre) < 8
+
+
+@needs_data
+@pytest.mark.parametrize('balance', [0.0, 1.0])
+def test_balance_keeps_its_meaning_around_the_calibrated_principal_point(tmp_path, capsys, balance):
+    """FC_eq.d. on the shared set (a 173 x 104 degree lens): with --balance 0 the rectified image
+    shows no black border at the raw image's edge midpoints (each lands on or beyond the rectified
+    image's edge), with --balance 1 all four are inside it, one on its edge."""
+    out_yaml = tmp_path / 'camera.yaml'
+    calibrate_json(capsys, str(DATA / 'left-000*.png'), '--balance', str(balance), '--yaml', str(out_yaml))
+    calibration = CameraCalibration.load(str(out_yaml))
+    w, h = calibration.width, calibration.height
+    (_, top), (right, _), (_, bottom), (left, _) = [
+        rectified_pixel(calibration, p) for p in ([w // 2, 0], [w, h // 2], [w // 2, h], [0, h // 2])]
+    beyond = [-left, right - w, -top, bottom - h]  # > 0: beyond the rectified image's edge
+    if balance == 0.0:
+        assert min(beyond) > -0.5, beyond
+    else:
+        assert max(beyond) < 0.5 and min(abs(b) for b in beyond) < 0.5, beyond

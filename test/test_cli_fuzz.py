@@ -220,18 +220,26 @@ def strict_json(text):
     return json.loads(text, parse_constant=reject)
 
 
+PROGRESS = ('zeroshot-calib: refine round ', 'zeroshot-calib: calibrate: ', 'zeroshot-calib: evaluate: ')
+"""The progress lines --progress asks for (one per step where stderr is not a terminal)."""
+NOT_ADOPTED = ('zeroshot-calib: not refined: ', 'zeroshot-calib: board fit not adopted: ')
+"""The one line of exit status 3: refine / calibrate ran but did not adopt their result."""
+
+
 def check(argv, status, out, err, caught, batch=False):
     STATUSES[status] += 1
     where = f'argv={argv!r}\nstatus={status}\nstderr={err!r}\nstdout={out[:400]!r}'
-    assert status in (0, 1, 2), where
+    assert status in (0, 1, 2, 3), where
     assert status != 1 or batch, where
+    assert status != 3 or argv[:1] in (['refine'], ['calibrate']), where
     assert 'Traceback' not in err and 'internal error' not in err, where
     assert not caught, f'{where}\nwarnings={caught}'
-    lines = err.splitlines()
+    lines = [line for line in err.splitlines() if not line.startswith(PROGRESS)]
     assert all(line.startswith('zeroshot-calib') for line in lines), where
     if status == 2:
         assert len(lines) == 1 and ': error: ' in lines[0], where
-    if status in (0, 1) and ('--json' in argv or batch) and out.strip() and '-h' not in argv and '--help' not in argv:
+    assert (status == 3) == any(line.startswith(NOT_ADOPTED) for line in lines), where
+    if status in (0, 1, 3) and ('--json' in argv or batch) and out.strip() and '-h' not in argv and '--help' not in argv:
         for line in (out.splitlines() if batch else [out]):
             strict_json(line)
 

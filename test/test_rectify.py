@@ -9,8 +9,8 @@ from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.lens.fitting import fit_kannala_brandt
 from zeroshot_calib_ros.core.ros_data.image_frames import ENCODINGS, ActiveCalibration, image_array
 from zeroshot_calib_ros.core.ros_data.rectify import (Rectifier, map_format_for, new_camera_matrix,
-                                                     pads_to_four_channels,
-                                                    rectification_maps)
+                                                     pads_to_four_channels, principal_point_camera_matrix,
+                                                     rectification_maps)
 
 def convert_maps(maps, to):
     """``maps`` as 'float' (two CV_32FC1) or 'fixed' (CV_16SC2 + CV_16UC1), as cv2.convertMaps gives them."""
@@ -93,6 +93,46 @@ def test_P_of_an_off_centre_kannala_brandt_camera_is_opencvs(balance, fov_scale)
     np.testing.assert_allclose(new_camera_matrix(camera, balance, fov_scale), fixed, atol=1e-6)
     if opencv_is_fixed:
         np.testing.assert_allclose(new_camera_matrix(camera, balance, fov_scale), theirs, atol=1e-6)
+
+
+@pytest.mark.parametrize('balance, fov_scale', GRID)
+@pytest.mark.parametrize('name', SPECS)
+def test_P_on_the_principal_point_is_opencvs_for_a_centred_camera(name, balance, fov_scale):
+    """principal_point_camera_matrix (the P `calibrate` writes) of a camera centred in its image:
+    what cv2.fisheye.estimateNewCameraMatrixForUndistortRectify gives for its K, D."""
+    spec = SPECS[name]
+    solution = solve_zero_shot(spec)
+    D = fit_kannala_brandt(solution.camera).D
+    theirs = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(
+        solution.K, D, (spec.width, spec.height), np.eye(3), balance=balance, fov_scale=fov_scale)
+    np.testing.assert_allclose(principal_point_camera_matrix(solution.camera, balance, fov_scale), theirs, atol=2e-3)
+
+
+WIDE_OFF_CENTRE = KannalaBrandtCamera(210.0, 210.0, 327.0, 176.0, 640, 360, np.array([0.02, -0.01, 0.003, -0.0005]))
+"""A 172 x 97 degree lens whose principal point is (7, -4) px off the image centre."""
+
+
+@pytest.mark.parametrize('balance', [0.0, 0.5, 1.0])
+def test_P_on_the_principal_point_of_an_off_centre_wide_lens(balance):
+    """For a wide lens off-centre by a few px, OpenCV's rule (the mean of the undistorted edge
+    midpoints, dominated by whichever edge is nearer 90 degrees) puts P's principal point outside
+    the image; principal_point_camera_matrix keeps the camera's, as ROS camera_calibration does
+    for a fisheye, and balance keeps its meaning: at 0 every edge midpoint of the raw image lands
+    on or beyond the rectified image's edge (no black border there), at 1 all are inside, one on
+    the edge; fov_scale divides the focal length."""
+    camera = WIDE_OFF_CENTRE
+    assert abs(new_camera_matrix(camera, balance)[0, 2] - 320) > 50  # what this replaces, for calibrate
+    P = principal_point_camera_matrix(camera, balance)
+    np.testing.assert_allclose(P[:2, 2], [camera.cx, camera.cy], atol=1e-12)
+    w, h = camera.width, camera.height
+    rays = camera.unproject(np.array([[w // 2, 0], [w, h // 2], [w // 2, h], [0, h // 2]], float))
+    (_, top), (right, _), (_, bottom), (left, _) = (rays[:, :2] / rays[:, 2:]) @ P[:2, :2].T + P[:2, 2]
+    beyond = np.array([-left, right - w, -top, bottom - h])
+    if balance == 0.0:
+        assert beyond.min() > -1e-6, beyond
+    elif balance == 1.0:
+        assert beyond.max() < 1e-6 and np.abs(beyond).min() < 1e-6, beyond
+    np.testing.assert_allclose(principal_point_camera_matrix(camera, balance, 2.0)[0, 0], P[0, 0] / 2, rtol=1e-12)
 
 
 def test_balance_and_fov_scale_are_checked():

@@ -1,3 +1,4 @@
+# PYTHON_ARGCOMPLETE_OK (tab completion when argcomplete is installed: see main)
 """``zeroshot-calib``: the ROS-free command line.
 
     zeroshot-calib solve --width 1920 --height 1080 --hfov 118 --vfov 69 [--json] [--yaml FILE]
@@ -10,13 +11,15 @@
     zeroshot-calib evaluate 'images/*.png' --hfov H --vfov V [--json] [--save-corners FILE]
 
 Errors exit with status 2 and one line on stderr, never a traceback; status 1: some --batch rows
-failed (or an internal error, reported in one line). Warnings are one line each on stderr,
-``zeroshot-calib: warning: ...``.
+failed (or an internal error, reported in one line); status 3: refine / calibrate ran but did not
+adopt their result (the zero-shot camera of the spec is printed and written, and the file says so in
+a comment). Warnings are one line each on stderr, ``zeroshot-calib: warning: ...``.
 """
 from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import difflib
 import glob
 import hashlib
@@ -37,7 +40,7 @@ from . import __version__  # noqa: E402
 
 from .core.checkerboard.calibration import as_solution, calibrate
 from .core.ros_data.calibration_file import (DISTORTION_MODELS, FORMATS, CalibrationFileError, CameraCalibration,
-                                    MAX_FILE_BYTES, json_safe, solution_summary, summary_text)
+                                    MAX_FILE_BYTES, json_safe, solution_summary, stand_in_note, summary_text)
 from .core.file_input import MAX_IMAGE_PIXELS, InputFileError, read_capped, read_image
 from .core.lens.models import RadialCamera, camera_from_calibration
 from .core.checkerboard.corners import SQUARE_ALLOWED, CornerSet, detect_corners, parse_board, square_ok
@@ -45,13 +48,21 @@ from .core.checkerboard.evaluation import evaluate, evaluation_to_dict, format_t
 from .core.estimation.terms import FOV_TOLERANCE_DEG
 from .core.lens.fitting import DISTORTION_FITS, FIT_WARNING_PX
 from .core.zeroshot.presets import load_presets, spec_with_preset
-from .core.ros_data.rectify import INTERPOLATIONS, Rectifier, new_camera_matrix
+from .core.ros_data.rectify import INTERPOLATIONS, Rectifier, new_camera_matrix, principal_point_camera_matrix
 from .core.zeroshot.solver import PROJECTION_CHOICES, NoConvergence, solve_zero_shot
 from .core.zeroshot.spec import CameraSpec, SpecError
 
 
 IMAGE_BUDGET = f'{MAX_IMAGE_PIXELS // 1_000_000} megapixels'
 """The pixel budget of every image read, as --help and the errors state it."""
+EXIT_NOT_ADOPTED = 3
+"""Exit status of `refine` / `calibrate` that ran fine but did not adopt their result: what they
+print and write is the zero-shot camera of the spec (``accepted: false`` in --json)."""
+EXIT_STATUSES = ('exit status: 0 done; 1 some --batch rows failed, or an internal error; 2 bad input or a '
+                 'failure (one line on stderr); 3 refine / calibrate ran but did not adopt their result: the '
+                 'zero-shot camera from the spec is printed and written (the file says so in a # comment; '
+                 '--json: "accepted": false)')
+"""The --help epilog on exit statuses."""
 
 
 class CliError(Exception):
@@ -161,13 +172,30 @@ def _fit_warnings(solution, calibration, fit):
 
 
 def _print_warnings(warnings, where=''):
+    if warnings:
+        _end_progress()
     for warning in warnings:
         print(f'zeroshot-calib: warning: {where}{warning}', file=sys.stderr, flush=True)
 
 
-def _save_calibration(calibration, path):
+def _not_adopted(what, reason, yaml_path):
+    """(file comment, stderr line) of a refine / calibrate whose result was not adopted (``what``:
+    'not refined', 'board fit not adopted'): the camera printed and written is zero-shot's."""
+    reason = ' '.join(str(reason).split())
+    comment = f'{what}: {reason}; this is the zero-shot camera from the spec'
+    held = f'{yaml_path} holds' if yaml_path else 'the camera printed is'
+    line = (f'zeroshot-calib: {what}: {reason}; {held} the zero-shot camera from the spec '
+            f'(exit status {EXIT_NOT_ADOPTED})')
+    return comment, line
+
+
+def _save_calibration(calibration, path, comments=()):
+    """Write ``calibration`` to ``path`` with ``comments`` (and what a stand-in D coefficient
+    means) as # comment lines, which camera_calibration_parsers skips."""
+    note = stand_in_note(calibration.distortion_model, calibration.D)
+    comments = list(comments) + ([f'distortion_coefficients: {note}'] if note else [])
     try:
-        calibration.save(path)
+        calibration.save(path, comments)
     except OSError as exc:
         raise CliError(f'cannot write {path}: {exc.strerror or exc}') from None
 
@@ -547,9 +575,12 @@ def _read_image(path, finite=False):
 
 
 def _load_calibration(path, option):
-    """CameraCalibration.load, every failure one CliError naming the option and the file."""
+    """CameraCalibration.load, every failure one CliError naming the option and the file; what
+    loading assumed (a missing distortion_model, say) is a warning line."""
     try:
-        return CameraCalibration.load(path)
+        calibration = CameraCalibration.load(path)
+        _print_warnings(calibration.load_warnings, f'{option} {path}: ')
+        return calibration
     except CalibrationFileError as exc:
         message = str(exc)
     except (ArithmeticError, TypeError, KeyError, AttributeError, ValueError) as exc:
@@ -560,9 +591,32 @@ def _load_calibration(path, option):
 RECTIFY_SPEC_OPTIONS = SOLVE_SPEC_FIELDS + ('preset', 'model')
 
 
-def _rectify_camera(args, width, height):
+_ONE_FOV_MEANING = {'hfov': 'the angle across the image width, edge to edge through the centre',
+                    'vfov': 'the angle across the image height, edge to edge through the centre',
+                    'dfov': 'the angle across the image diagonal, corner to corner'}
+
+
+def _spec_words(spec, solution):
+    """How `rectify` read the spec: the FOVs given and, for one FOV (or the circle) alone, what it
+    was taken to mean and what was assumed (the warning gives the details)."""
+    given = dict(spec.given())
+    circle = spec.circle_diameter is not None and spec.circle_fov is not None
+    text = ', '.join(f'{k} {v:g}' for k, v in given.items()) + (' deg' if given else '')
+    if circle:
+        text += (', ' if given else '') + f'circle {spec.circle_diameter:g} px across {spec.circle_fov:g} deg'
+    if len(given) == 1 and not circle and solution.assumption:
+        (key, _), = given.items()
+        text += f' alone (taken as {_ONE_FOV_MEANING[key]}; lens shape assumed from real lenses of that FOV)'
+    elif not given and circle:
+        text += ' alone (the pure equidistant law assumed across the circle)'
+    return text
+
+
+def _rectify_camera(args, width, height, about=None):
     """(camera model, P, R) for an image of width x height (R: the calibration file's
-    rectification rotation, honoured as image_proc does; the identity for a spec)."""
+    rectification rotation, honoured as image_proc does; the identity for a spec). ``about``, a
+    dict, gets 'model' and 'source': where the camera comes from, in words."""
+    about = {} if about is None else about
     balance = 0.0 if args.balance is None else args.balance
     fov_scale = 1.0 if args.fov_scale is None else args.fov_scale
     if args.calibration is not None:
@@ -572,6 +626,8 @@ def _rectify_camera(args, width, height):
                            'gives the camera')
         calibration = _load_calibration(args.calibration, '--calibration')
         cw, ch = calibration.width, calibration.height
+        about.update(model=calibration.distortion_model, source=f'from {args.calibration}' + (
+            f' (for {cw}x{ch}, scaled)' if (cw, ch) != (width, height) else ''))
         if (cw, ch) != (width, height):
             if width * ch != height * cw:
                 raise CliError(f'the image {args.input} is {width}x{height} but --calibration '
@@ -596,6 +652,8 @@ def _rectify_camera(args, width, height):
                        'aspect ratios differ')
     solution = solve_zero_shot(spec, args.model or 'auto', fov_tolerance=args.fov_tolerance)
     _print_warnings(solution.warnings + _assumption_warnings(solution))
+    about.update(model=solution.projection.name, source=f'zero-shot from {_spec_words(spec, solution)}' + (
+        f' (for {spec.width}x{spec.height}, scaled)' if (spec.width, spec.height) != (width, height) else ''))
     camera = solution.camera if (spec.width, spec.height) == (width, height) \
         else solution.camera.scaled(width, height)
     return camera, new_camera_matrix(camera, balance, fov_scale), None
@@ -605,7 +663,8 @@ def _cmd_rectify(args):
     _check_output_image(args.output)
     image, _ = _read_image(args.input)
     height, width = image.shape[:2]
-    camera, P, R = _rectify_camera(args, width, height)
+    about = {}
+    camera, P, R = _rectify_camera(args, width, height, about)
     rectifier = Rectifier(camera, interpolation=args.interpolation, P=P, R=R)
     try:
         written = cv2.imwrite(args.output, rectifier.rectify(image))
@@ -613,7 +672,16 @@ def _cmd_rectify(args):
         raise CliError(f'cannot write image {args.output}: OpenCV: {exc}') from None
     if not written:
         raise CliError(f'cannot write image {args.output}')
+    print(f'wrote {args.output}: {width}x{height} pinhole image ({_focal_and_centre(P)}) from {args.input}; '
+          f"camera: {about['model']}, {about['source']}, K {_focal_and_centre(camera.K)}")
     return 0
+
+
+def _focal_and_centre(matrix):
+    """'f F px, principal point (X, Y)' of a 3x3 camera matrix (fx and fy when they differ)."""
+    fx, fy, cx, cy = matrix[0][0], matrix[1][1], matrix[0][2], matrix[1][2]
+    focal = f'f {fx:.2f} px' if abs(fx - fy) <= 1e-9 * abs(fx) else f'fx {fx:.2f} px, fy {fy:.2f} px'
+    return f'{focal}, principal point ({cx:.1f}, {cy:.1f})'
 
 
 # -- refine: the spec plus straight lines in ordinary images ---------------------------------------
@@ -638,11 +706,11 @@ def _refine_spec(args, width, height):
 
 
 def _kannala_brandt_record(camera, spec, model, args, distortion_model='equidistant', D=None, fit_error=0.0,
-                           root_found=True):
+                           root_found=True, rectified=new_camera_matrix):
     """`solve --json`'s record of a Kannala-Brandt camera at the spec's size (refined or calibrated)
     and its CameraCalibration; ``D`` / ``fit_error``: of the ROS model when it is not equidistant
-    (an equidistant D is the camera's own, exact)."""
-    P = np.hstack([new_camera_matrix(camera, args.balance, args.fov_scale), np.zeros((3, 1))])
+    (an equidistant D is the camera's own, exact); ``rectified``: the function that makes P."""
+    P = np.hstack([rectified(camera, args.balance, args.fov_scale), np.zeros((3, 1))])
     calibration = CameraCalibration(spec.width, spec.height, camera.K, distortion_model,
                                     camera.D if D is None else D, np.eye(3), P, args.camera_name)
     fovs = camera.fields_of_view()
@@ -704,28 +772,27 @@ def _is_terminal(stream) -> bool:
         return False
 
 
-class _RefineProgressLine:
-    """``refine``'s progress on a stream: one line rewritten in place (``\r``) on a terminal, a
-    line per report elsewhere (a log file has no use for carriage returns)."""
+class _ProgressLine:
+    """Progress on a stream: one line rewritten in place (``\r``) on a terminal, a line per report
+    elsewhere (a log file has no use for carriage returns). ``refine``, ``calibrate`` and
+    ``evaluate`` report through it (``_progress_line``); any other output first ends the line
+    (``_end_progress``)."""
 
-    def __init__(self, stream):
+    active = None
+    """The line being rewritten in place, if any."""
+
+    def __init__(self, stream, command):
         self.stream = stream
+        self.prefix = f'zeroshot-calib: {command} '
         self.in_place = _is_terminal(stream)
         self.width = 0
 
-    def __call__(self, p) -> None:
-        camera = p.camera
-        estimate = f'f {camera.fx:.1f} px, principal point ({camera.cx:.1f}, {camera.cy:.1f})'
-        if p.stage == 'detection':
-            text = (f'round {p.round}/{p.rounds}: {p.frames_done}/{p.frames} images, {p.lines} lines found; '
-                    f'looking with {estimate}')
-        else:
-            text = (f'round {p.round}/{p.rounds}: fitted {p.lines} lines: {estimate} '
-                    f'({"accepted" if p.accepted else "not accepted"})')
-        text = f'zeroshot-calib: refine {text}'
+    def __call__(self, text) -> None:
+        text = self.prefix + text
         if self.in_place:
             self.stream.write('\r' + text.ljust(self.width))
             self.width = len(text)
+            _ProgressLine.active = self
         else:
             self.stream.write(text + '\n')
         self.stream.flush()
@@ -735,6 +802,34 @@ class _RefineProgressLine:
             self.stream.write('\n')
             self.stream.flush()
             self.width = 0
+        if _ProgressLine.active is self:
+            _ProgressLine.active = None
+
+
+def _end_progress() -> None:
+    """End the progress line being rewritten in place, if any, so that what follows (a warning, the
+    result) starts on a line of its own; the next report starts a new progress line."""
+    if _ProgressLine.active is not None:
+        _ProgressLine.active.close()
+
+
+def _progress_line(args, command):
+    """A _ProgressLine on stderr with --progress, or by default when stderr is a terminal and the
+    output is not --json; None otherwise (silent)."""
+    if args.progress or (not args.json and _is_terminal(sys.stderr)):
+        return _ProgressLine(sys.stderr, command)
+    return None
+
+
+def _refine_progress_text(p) -> str:
+    """``refine``'s progress report (core/estimation/refine.py) as the text of its progress line."""
+    camera = p.camera
+    estimate = f'f {camera.fx:.1f} px, principal point ({camera.cx:.1f}, {camera.cy:.1f})'
+    if p.stage == 'detection':
+        return (f'round {p.round}/{p.rounds}: {p.frames_done}/{p.frames} images, {p.lines} lines found; '
+                f'looking with {estimate}')
+    return (f'round {p.round}/{p.rounds}: fitted {p.lines} lines: {estimate} '
+            f'({"accepted" if p.accepted else "not accepted"})')
 
 
 def _cmd_refine(args):
@@ -786,14 +881,15 @@ def _cmd_refine(args):
         circle_warnings.append(
             f'--circle-diameter {spec.circle_diameter:g} px differs from the image circle measured in the images: '
             f'{circle.diameter:.1f} +- {2 * circle.radius_sigma_px:.1f} px ({measured_in} of {len(images)} images); '
-            'the given diameter is used, the measured centre only as the principal point')
+            'the given diameter is used, the measured centre only as the principal point: check --circle-diameter, '
+            'or leave it out to use the measured diameter')
     solution = solve_zero_shot(spec, 'auto', fov_tolerance=args.fov_tolerance)
-    progress = _RefineProgressLine(sys.stderr) if args.progress or (not args.json and _is_terminal(sys.stderr)) \
-        else None
+    progress = _progress_line(args, 'refine')
     # the images are detected in parallel threads (the same curves, in the same order)
     try:
         result = refine_from_images(spec, images, args.fov_tolerance, workers=os.cpu_count() or 1, regions=regions,
-                                    progress=progress)
+                                    progress=None if progress is None else
+                                    (lambda report: progress(_refine_progress_text(report))))
     finally:
         if progress is not None:
             progress.close()
@@ -821,8 +917,9 @@ def _cmd_refine(args):
                             getattr(result.uncertainty, 'reason', ''), result.zero_shot_camera, images[0],
                             os.path.basename(names[0]), args.balance, args.fov_scale, warnings=warnings,
                             camera_name=args.camera_name)
+    refused = None if result.accepted else _not_adopted('not refined', result.reason, args.yaml)
     if args.yaml:  # written only now: every step has succeeded
-        _save_calibration(calibration, args.yaml)
+        _save_calibration(calibration, args.yaml, [refused[0]] if refused else ())
     written = [f'--yaml {args.yaml}'] if args.yaml else []
     if canvas is not None:
         _write_png(args.debug_image, canvas, '--debug-image', written)
@@ -842,6 +939,9 @@ def _cmd_refine(args):
         if args.report:
             print(f'wrote {args.report}')
     _print_warnings(warnings)
+    if refused:
+        print(refused[1], file=sys.stderr, flush=True)
+        return EXIT_NOT_ADOPTED
     return 0
 
 
@@ -878,8 +978,9 @@ def _image_paths(patterns):
     return paths
 
 
-def _corner_set(args, single=None):
-    """The CornerSet of the images / --corners file; writes --save-corners."""
+def _corner_set(args, single=None, progress=None):
+    """The CornerSet of the images / --corners file; writes --save-corners. ``progress``: a
+    _ProgressLine told of each image searched."""
     if args.corners and args.images:
         raise CliError('give chessboard images or --corners FILE, not both')
     if not square_ok(args.square):
@@ -891,8 +992,9 @@ def _corner_set(args, single=None):
         paths = _image_paths(args.images) or ([single] if single else [])
         if not paths:
             raise CliError('no input: give chessboard images or --corners FILE')
-        corners = detect_corners(paths, parse_board(args.board, args.square), args.skip_missing)
+        corners = detect_corners(paths, parse_board(args.board, args.square), args.skip_missing, progress)
         if corners.missing:
+            _end_progress()
             print(f'zeroshot-calib: warning: board {corners.board.size} not found in '
                   f'{len(corners.missing)} of {len(paths)} images, left out: '
                   f'{", ".join(os.path.basename(p) for p in corners.missing)}', file=sys.stderr)
@@ -950,8 +1052,24 @@ def _calibrate_report(args, corners, used_views, camera, summary, **fields):
                       fov_tolerance_deg=args.fov_tolerance, **fields)
 
 
+def _calibrated_P(calibration, camera, args):
+    """``calibration`` with P centred on the calibrated principal point, as ROS camera_calibration
+    writes it for a fisheye (core/ros_data/rectify.principal_point_camera_matrix)."""
+    P = np.hstack([principal_point_camera_matrix(camera, args.balance, args.fov_scale), np.zeros((3, 1))])
+    return dataclasses.replace(calibration, P=P)
+
+
 def _cmd_calibrate(args):
-    corners = _corner_set(args, args.single)
+    progress = _progress_line(args, 'calibrate:')
+    try:
+        return _calibrate(args, progress)
+    finally:
+        if progress is not None:
+            progress.close()
+
+
+def _calibrate(args, progress):
+    corners = _corner_set(args, args.single, progress)
     views = None
     if args.single:
         if os.path.basename(args.single) in {os.path.basename(p) for p in corners.missing}:
@@ -963,14 +1081,18 @@ def _cmd_calibrate(args):
         if args.principal_point != 'auto':
             raise CliError(f'--principal-point {args.principal_point} is for --spec-as start (FC_eq.d.): the '
                            'spec-as-evidence fit always frees the principal point under its prior')
-        return _calibrate_with_spec(args, corners, views, spec, spec_warnings)
+        return _calibrate_with_spec(args, corners, views, spec, spec_warnings, progress)
     principal_point = {'auto': None, 'fixed': False, 'free': True}[args.principal_point]
+    if progress is not None:
+        progress(f'fitting FC_eq.d. to {len(corners) if views is None else len(views)} image(s)')
     result = calibrate(corners, 'fc+zs' if spec is not None else 'fc', views, spec, principal_point)
+    _end_progress()
     if not result.ok:
         raise CliError(f'calibration failed: {result.error}')
     solution = as_solution(result, spec)
     calibration, fit = CameraCalibration.from_solution(solution, args.distortion_model, args.balance,
                                                        args.fov_scale, args.camera_name)
+    calibration = _calibrated_P(calibration, solution.camera, args)
     if args.distortion_model == 'plumb_bob':
         _check_plumb_bob(solution.camera, fit.max_error_px, 'the calibrated camera')
     summary = solution_summary(solution, calibration, fit)
@@ -1066,13 +1188,15 @@ def _spec_warnings(spec, fov_tolerance):
         return []
 
 
-def _calibrate_with_spec(args, corners, views, spec, spec_warnings=()):
+def _calibrate_with_spec(args, corners, views, spec, spec_warnings=(), progress=None):
     """`calibrate` with the spec as evidence: the MAP over corners, FOVs and priors
-    (core/estimation/board_fit.py); the camera is Kannala-Brandt (ROS equidistant, exact)."""
+    (core/estimation/board_fit.py); the camera is Kannala-Brandt (ROS equidistant, exact). Exit
+    status EXIT_NOT_ADOPTED when the fit is not adopted (the zero-shot camera is written)."""
     from .core.estimation.board_fit import METHOD_LABEL, fit_board  # scipy.optimize: only when asked
     if not (args.fov_tolerance > 0 and math.isfinite(args.fov_tolerance)):
         raise CliError(f'--fov-tolerance {args.fov_tolerance:g} is invalid: allowed: degrees, greater than 0')
-    fit = fit_board(corners, spec, views, fov_tolerance_deg=args.fov_tolerance)
+    fit = fit_board(corners, spec, views, fov_tolerance_deg=args.fov_tolerance, progress=progress)
+    _end_progress()
     camera = fit.camera
     if args.distortion_model == 'equidistant':
         D, fit_error = np.asarray(camera.D, float), 0.0  # a Kannala-Brandt camera: its D is exact
@@ -1088,7 +1212,8 @@ def _calibrate_with_spec(args, corners, views, spec, spec_warnings=()):
     # the gate may keep the zero-shot camera (fit_board, step 4): then that is what is written,
     # and the record says so where a user looks first (model, method), not only in the notes
     model = 'calibrated (Kannala-Brandt)' if fit.accepted else 'zero-shot (Kannala-Brandt fit; the board fit not adopted)'
-    summary, calibration = _kannala_brandt_record(camera, spec, model, args, args.distortion_model, D, fit_error)
+    summary, calibration = _kannala_brandt_record(camera, spec, model, args, args.distortion_model, D, fit_error,
+                                                  rectified=principal_point_camera_matrix)
     used = [corners.names[v] for v in fit.views]
     summary.update({
         'warning': list(spec_warnings) + fit_warnings + list(fit.warnings),
@@ -1108,13 +1233,19 @@ def _calibrate_with_spec(args, corners, views, spec, spec_warnings=()):
                                reason=fit.reason, spec=spec, uncertainty=fit.uncertainty,
                                uncertainty_px=fit.uncertainty_px, uncertainty_reason=fit.uncertainty.reason,
                                zero_shot_camera=fit.zero_shot_camera)
+    refused = None if fit.accepted else _not_adopted('board fit not adopted', fit.reason.split(': ', 1)[-1],
+                                                     args.yaml)
     if args.yaml:
-        _save_calibration(calibration, args.yaml)
+        _save_calibration(calibration, args.yaml, [refused[0]] if refused else ())
     _write_report(args, report, [f'--yaml {args.yaml}'] if args.yaml else [])
     _print_warnings(summary['warning'])
+    status = 0
+    if refused:
+        print(refused[1], file=sys.stderr, flush=True)
+        status = EXIT_NOT_ADOPTED
     if args.json:
         print(json.dumps(json_safe(summary)))
-        return 0
+        return status
     given = ', '.join(f'{k} {v:g} -> {fit.fovs_fitted[k]:.2f}' for k, v in fit.fovs_given.items())
     method = (f"method    {METHOD_LABEL}, spec as evidence (FOVs +- {args.fov_tolerance:g} deg), start: zero-shot, "
               f"principal point free (prior), k1..k{fit.order} moved" if fit.accepted else
@@ -1124,7 +1255,7 @@ def _calibrate_with_spec(args, corners, views, spec, spec_warnings=()):
     lines.append(f"spec      {given} deg (given -> {'fitted' if fit.accepted else 'the board fit'}): "
                  + ('agrees' if fit.spec_agrees else 'DISAGREES with the corners (see the warning)'))
     _print_calibrate_text(lines, summary, args)
-    return 0
+    return status
 
 
 def _ray_reach(camera, edge):
@@ -1184,7 +1315,16 @@ def _evaluation_spec(args, corners):
 
 
 def _cmd_evaluate(args):
-    corners = _corner_set(args)
+    progress = _progress_line(args, 'evaluate:')
+    try:
+        return _evaluate(args, progress)
+    finally:
+        if progress is not None:
+            progress.close()
+
+
+def _evaluate(args, progress):
+    corners = _corner_set(args, progress=progress)
     spec, spec_source, reference, reference_source = _evaluation_spec(args, corners)
     if args.runs is not None and args.runs < 1:
         raise CliError(f'--runs {args.runs} is invalid: allowed: 1 or more')
@@ -1195,11 +1335,9 @@ def _cmd_evaluate(args):
         name = os.path.splitext(os.path.basename(args.corners))[0]
     else:
         name = os.path.basename(os.path.dirname(os.path.abspath(corners.names[0]))) or 'camera'
-    progress = None
-    if args.progress:
-        progress = lambda m: print(f'zeroshot-calib: {m}', file=sys.stderr, flush=True)  # noqa: E731
     result = evaluate(corners, spec, shots=args.shots, runs=runs, name=name, spec_source=spec_source,
                       reference=reference, reference_source=reference_source, progress=progress)
+    _end_progress()
     if args.json:
         print(json.dumps(json_safe(evaluation_to_dict(result))))
     else:
@@ -1231,7 +1369,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog='zeroshot-calib',
         description='Zero-shot calibration of wide-angle and fisheye cameras from resolution and '
-                    'spec-sheet field of view (J.-Y. Lee, CVPR 2021).')
+                    'spec-sheet field of view (J.-Y. Lee, CVPR 2021).', epilog=EXIT_STATUSES)
     parser.add_argument('--version', action='version', version=f'%(prog)s {__version__}')
     sub = parser.add_subparsers(dest='command', required=True, metavar='command',
                                 help='solve, presets, rectify, refine, calibrate or evaluate')
@@ -1281,7 +1419,8 @@ def build_parser() -> argparse.ArgumentParser:
     rectify.add_argument('--interpolation', type=_integer, default=1, choices=sorted(INTERPOLATIONS),
                          help='0 nearest, 1 linear, 2 cubic, 4 lanczos4 (default 1)')
     rectify.set_defaults(run=_cmd_rectify, model=None, balance=None, fov_scale=None)
-    refine = sub.add_parser('refine', help='the spec sheet plus straight lines in ordinary images of the camera')
+    refine = sub.add_parser('refine', help='the spec sheet plus straight lines in ordinary images of the camera',
+                            epilog=EXIT_STATUSES)
     refine.add_argument('images', nargs='+', help='images of the camera (one size): rooms, streets, corridors; '
                         f'at most {IMAGE_BUDGET} each; an image given twice (same file or same content) counts once')
     refine.add_argument('--hfov', type=_number, help='horizontal field of view (deg)')
@@ -1314,7 +1453,7 @@ def build_parser() -> argparse.ArgumentParser:
                                        'over the corners, the spec FOVs (+- --fov-tolerance) and stated priors, '
                                        'reporting uncertainty_px; --spec-as start is the earlier behaviour, '
                                        'FC_eq.d. started from the zero-shot camera (FC_eq.d.+ZS), the spec '
-                                       'forgotten after the start.')
+                                       'forgotten after the start.', epilog=EXIT_STATUSES)
     _add_corner_arguments(calib)
     calib.add_argument('--spec-as', default='evidence', choices=('evidence', 'start'),
                        help='with a spec: evidence (default): MAP over corners + spec FOVs + priors, '
@@ -1336,6 +1475,8 @@ def build_parser() -> argparse.ArgumentParser:
     calib.add_argument('--yaml', metavar='FILE', help='write a camera_info_manager calibration file')
     calib.add_argument('--report', metavar='OUT.png',
                        help=REPORT_HELP.format(extra=', the board coverage and the reprojection RMS of each image'))
+    calib.add_argument('--progress', action='store_true',
+                       help='report progress on stderr (default: when stderr is a terminal, without --json)')
     calib.set_defaults(run=_cmd_calibrate)
 
     ev = sub.add_parser('evaluate', help="the paper's evaluation (Tables 3 and 4 layouts) on chessboard "
@@ -1351,7 +1492,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument('--runs', type=_integer, help='only the first N single-shot runs (quicker, partial)')
     ev.add_argument('--name', help='camera name in the tables (default: the image folder / file name)')
     ev.add_argument('--json', action='store_true', help='print one JSON object')
-    ev.add_argument('--progress', action='store_true', help='report progress on stderr')
+    ev.add_argument('--progress', action='store_true',
+                    help='report progress on stderr (default: when stderr is a terminal, without --json)')
     ev.set_defaults(run=_cmd_evaluate)
     return parser
 
@@ -1387,8 +1529,23 @@ def _one_line(exc) -> str:
     return ' '.join(str(exc).split()) or type(exc).__name__
 
 
+def _complete(parser):
+    """Tab completion with argcomplete (as ros2cli has it), only when it is installed and the shell
+    asks for completions (argcomplete's shell hook sets _ARGCOMPLETE); then it prints them and
+    exits. Nothing is imported otherwise, and argcomplete is no dependency. Enable it in bash with
+    eval "$(register-python-argcomplete zeroshot-calib)"."""
+    if '_ARGCOMPLETE' not in os.environ:
+        return
+    try:
+        import argcomplete
+    except ImportError:
+        return
+    argcomplete.autocomplete(parser)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
+    _complete(parser)
     args = parser.parse_args(argv)
     if hasattr(cv2, 'setLogLevel'):
         cv2.setLogLevel(1)  # fatal only: OpenCV's own warnings would be extra stderr lines; we report

@@ -39,7 +39,7 @@ import math
 import os
 import re
 from dataclasses import dataclass, field
-from typing import List, Optional, Sequence
+from typing import Callable, List, Optional, Sequence
 
 import cv2
 import numpy as np
@@ -309,14 +309,19 @@ def find_board(gray: np.ndarray, board: Board):
     return None
 
 
-def detect_corners(paths: Sequence[str], board: Board = Board(), skip_missing: bool = False) -> CornerSet:
-    """Detect ``board`` in every image of ``paths`` (see the module docstring)."""
+def detect_corners(paths: Sequence[str], board: Board = Board(), skip_missing: bool = False,
+                   progress: Optional[Callable[[str], None]] = None) -> CornerSet:
+    """Detect ``board`` in every image of ``paths`` (see the module docstring); ``progress`` is
+    told of each image before it is read."""
     paths = list(paths)
     if not paths:
         raise CornersError('no images given')
     names, corners, missing = [], [], []
     size, first = None, None
-    for path in paths:
+    for number, path in enumerate(paths, start=1):
+        if progress is not None:
+            progress(f'finding the board in image {number}/{len(paths)} ({os.path.basename(str(path))}), '
+                     f'found in {len(names)} so far')
         try:
             gray, _ = read_image(str(path), cv2.IMREAD_GRAYSCALE)
         except InputFileError as exc:

@@ -39,6 +39,30 @@ FULL_METHODS = ('pers', 'zs', 'zhang', 'fc', 'fc+zs', 'fisheye')
 SHOT_METHODS = ('fc', 'zhang', 'fc+zs', 'fisheye')
 NEEDS_SPEC = ('pers', 'zs', 'fc+zs')
 LABELS = dict(METHOD_LABELS, pers='Pers.', zs='ZS', reference='reference')
+PLAIN_NAMES = {
+    'pers': "pinhole camera from the spec's FOVs, no distortion",
+    'zs': 'zero-shot camera from the spec',
+    'zhang': "OpenCV's pinhole calibration (calibrateCamera, plumb_bob)",
+    'fc': "checkerboard fit of the paper's fisheye model, default start",
+    'fc+zs': "checkerboard fit of the paper's fisheye model, from zero-shot",
+    'fisheye': "OpenCV's fisheye calibration (cv2.fisheye.calibrate)",
+    'reference': 'the calibration given with --spec-from',
+}
+"""Each method in plain words, printed beside the paper's name (``LABELS``)."""
+
+
+def plain_name(key: str, images: Optional[str] = None) -> str:
+    """``PLAIN_NAMES[key]`` and, for a calibration, the images it used (``images``: '1 image',
+    'all 24 images'; None for a camera that uses no image)."""
+    if key in ('pers', 'zs'):
+        return f'{PLAIN_NAMES[key]} (no image used)'
+    name = PLAIN_NAMES[key]
+    if images is None or key == 'reference':
+        return name
+    if key in ('fc', 'fc+zs'):  # 'checkerboard fit, 1 image, from zero-shot'
+        head, start = name.split(', ')
+        return f'{head}, {images}, {start}'
+    return f'{name}, {images}'
 
 
 @dataclass
@@ -229,8 +253,8 @@ def evaluate(corners: CornerSet, spec: Optional[CameraSpec] = None, shots: int =
         if key in NEEDS_SPEC and spec is None:
             study.skipped = 'no spec given (needs hfov / vfov / dfov)'
             continue
-        say(f'{shots}-shot: {study.label}, {len(runs)} runs')
-        for k in runs:
+        for number, k in enumerate(runs, start=1):
+            say(f'{shots}-shot: {study.label}, run {number} of {len(runs)}')
             views = shot_views(n, k, shots)
             try:
                 result = calibrate(corners, key, views=views, spec=spec)
@@ -360,6 +384,7 @@ def format_tables(ev: Evaluation) -> str:
                            + ', '.join(str(cr) for _, cr in st.rejected[:6])
                            + (' ...' if len(st.rejected) > 6 else ''))
 
+    out += [''] + _key_lines(ev, [k for k in FULL_METHODS if k in ev.full])
     out += ['', 'Full calibrations and cameras (intrinsics in px)']
     rows = [(LABELS[k], ev.full[k]) for k in FULL_METHODS if k in ev.full]
     if ev.reference is not None:
@@ -393,6 +418,28 @@ def format_tables(ev: Evaluation) -> str:
     return '\n'.join(out)
 
 
+def _shot_images(shots: int) -> str:
+    return '1 image' if shots == 1 else f'{shots} consecutive images'
+
+
+def _key_lines(ev: Evaluation, table3: Sequence[str]) -> List[str]:
+    """The key to the tables: each column's paper name with a plain name beside it, and what the
+    numbers are."""
+    n = len(ev.corners)
+    rows = [(LABELS[k], plain_name(k, f'all {n} images')) for k in table3]
+    if ev.studies:
+        rows += [(st.label, plain_name(st.key, _shot_images(st.shots))) for st in ev.studies.values()]
+        rows += [(f'{LABELS[k]}(N)', plain_name(k, f'all {n} images')) for k in ('zhang', 'fisheye') if k in ev.full]
+    width = max(len(label) for label, _ in rows)
+    lines = ['Key to the columns (the paper\'s name: in plain words)']
+    lines += [f'  {label:<{width}}  {plain}' for label, plain in rows]
+    lines.append(f'  {"eps":<{width}}  RMS reprojection error (px) of the camera on all {n} images')
+    if ev.studies:
+        lines.append(f'  {"eps_gen (eps_fit)":<{width}}  Table 4: the same on all {n} images (on the image(s) it '
+                     'was calibrated on), mean over the runs')
+    return lines
+
+
 def _finite(x):
     return None if x is None or not math.isfinite(x) else float(x)
 
@@ -402,7 +449,8 @@ def evaluation_to_dict(ev: Evaluation) -> dict:
     c = ev.corners
 
     def row_dict(row: FullRow):
-        d = {'label': row.label, 'eps': _finite(row.rms), 'failure': row.failure or None,
+        d = {'label': row.label, 'plain_name': plain_name(row.key, f'all {len(c)} images'),
+             'eps': _finite(row.rms), 'failure': row.failure or None,
              'camera': _intrinsics(row.camera), 'notes': row.notes}
         if row.error is not None:
             d['per_image_eps'] = [_finite(x) for x in row.error.per_image]
@@ -415,7 +463,8 @@ def evaluation_to_dict(ev: Evaluation) -> dict:
 
     def study_dict(st: ShotStudy):
         return {
-            'label': st.label, 'shots': st.shots, 'skipped': st.skipped or None,
+            'label': st.label, 'plain_name': plain_name(st.key, _shot_images(st.shots)),
+            'shots': st.shots, 'skipped': st.skipped or None,
             'eps_gen': _finite(st.gen_mean), 'eps_fit': _finite(st.fit_mean),
             'eps_gen_median': _finite(st.gen_median),
             'runs_total': len(st.runs), 'runs_ok': len(st.ok_runs), 'runs_failed': len(st.failed_runs),

@@ -75,7 +75,7 @@ import copy
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import Callable, Dict, List, Optional, Sequence
 
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
@@ -340,10 +340,13 @@ def spec_contradiction(problem: Problem, x, fov: FovTerm, tolerance_deg: float, 
 
 def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int]] = None,
               fov_tolerance_deg: float = FOV_TOLERANCE_DEG, orders=range(KB_TERMS + 1),
-              max_nfev: int = 60, shape_sigma: float = SHAPE_SIGMA) -> BoardFit:
+              max_nfev: int = 60, shape_sigma: float = SHAPE_SIGMA,
+              progress: Optional[Callable[[str], None]] = None) -> BoardFit:
     """The MAP calibration of ``views`` (all images by default) of ``corners`` with ``spec``'s FOVs
     as evidence (module docstring); ``orders``: the model orders tried; ``shape_sigma``: the shape
-    prior's RMS relative deviation. Input errors raise CalibrationError / CornersError / SpecError."""
+    prior's RMS relative deviation; ``progress`` is told of each fit before it runs. Input errors
+    raise CalibrationError / CornersError / SpecError."""
+    say = progress or (lambda message: None)
     if spec is None or not (spec.given() or getattr(spec, 'circle_fov', None) is not None):
         raise CalibrationError('the spec as evidence needs a FOV: give hfov / vfov / dfov')
     views = tuple(range(len(corners))) if views is None else tuple(int(v) for v in views)
@@ -380,7 +383,9 @@ def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int
         return problem, solution_
 
     sigma = INITIAL_SIGMA_PX
-    for _ in range(MAX_ROUNDS):
+    for round_ in range(1, MAX_ROUNDS + 1):
+        say(f'fitting {len(views)} image{"s" if len(views) > 1 else ""} and the spec: round {round_} '
+            f'(outlier corners left out so far: {int(np.sum(term.weights == 0))})')
         problem, sol = solve(top, term.copy(sigma=sigma), x)
         x = sol.x
         camera = top.camera(x)
@@ -393,6 +398,8 @@ def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int
     term = term.copy(sigma=sigma)
     fits, score = {}, {}
     for order in reversed(orders):
+        say(f'fitting {len(views)} image{"s" if len(views) > 1 else ""} and the spec: lens model with '
+            f'{order} distortion coefficient{"s" if order != 1 else ""}')
         layout = top.with_order(order)
         x0 = x if order == orders[-1] else _truncated_start(layout, top.camera(x))
         problem, sol = solve(layout, term.copy(), x0)

@@ -24,7 +24,7 @@ import os
 import re
 import reprlib
 from dataclasses import dataclass, field
-from typing import List, Optional
+from typing import List, Optional, Sequence
 
 import numpy as np
 import yaml
@@ -41,6 +41,20 @@ DISTORTION_MODELS = tuple(DISTORTION_FITS)
 """The models ``from_solution`` can fit."""
 NONZERO_EPSILON = 1e-20
 """Stand-in for an exact-zero coefficient of a distorting model (see ``CameraCalibration.from_solution``)."""
+
+
+def stand_in_note(distortion_model: str, D) -> Optional[str]:
+    """What a D of zeros but one NONZERO_EPSILON (``from_solution``'s stand-in) means, in words for
+    the one who reads the file or the output; None for any other D."""
+    D = np.asarray(D, dtype=float).ravel()
+    if D.size == 0 or np.count_nonzero(D) != 1 or D[np.nonzero(D)[0][0]] != NONZERO_EPSILON:
+        return None
+    if distortion_model in ('equidistant', 'fisheye'):
+        meaning = 'no correction: the lens follows the fisheye law r = f * theta exactly'
+    else:
+        meaning = 'every fitted coefficient is 0'
+    return (f'{meaning}; the {NONZERO_EPSILON:g} stands for 0, written because image_proc takes an all-zero D '
+            'as "no distortion" and would not rectify (it moves no pixel)')
 
 DISTORTION_COEFFICIENTS = {'equidistant': (4,), 'fisheye': (4,), 'plumb_bob': (0, 4, 5, 8),
                            'rational_polynomial': (8,)}
@@ -478,10 +492,11 @@ class CameraCalibration:
             extra['roi'] = self.roi.to_dict()
         return extra
 
-    def to_yaml(self) -> str:
+    def to_yaml(self, comments: Sequence[str] = ()) -> str:
         """parse_yml.cpp's layout and key order: block mappings, flow-style data lists; numbers
         exact (shortest round-trip text); camera_name quoted, so that names like 123 or true
-        stay strings for PyYAML too; then binning / roi if not the defaults."""
+        stay strings for PyYAML too; then binning / roi if not the defaults. ``comments``: lines
+        put first as ``# `` comments, which the readers skip (``comment_lines``)."""
         d = self.to_dict()
         lines = [f"image_width: {d['image_width']}", f"image_height: {d['image_height']}",
                  f'camera_name: "{self.camera_name}"']  # check_camera_name: nothing to escape
@@ -500,7 +515,7 @@ class CameraCalibration:
         if 'roi' in d:
             lines.append('roi:')
             lines += [f'  {key}: {str(value).lower()}' for key, value in d['roi'].items()]
-        return '\n'.join(lines) + '\n'
+        return '\n'.join(comment_lines(comments) + lines) + '\n'
 
     @classmethod
     def from_yaml_text(cls, text: str) -> 'CameraCalibration':
@@ -553,7 +568,8 @@ class CameraCalibration:
                                            f'{", ".join(DISTORTION_COEFFICIENTS)}')
         else:
             model = 'plumb_bob'
-            warnings.append('distortion_model is missing: assuming plumb_bob (as camera_calibration_parsers does)')
+            warnings.append('distortion_model is missing: assuming plumb_bob (as camera_calibration_parsers does); '
+                            'if the coefficients are of another model, add its distortion_model line to the file')
         D = _yaml_matrix('distortion_coefficients', required('distortion_coefficients'), None, None)
         binning_x = _integer('binning_x', d.get('binning_x', 0), 0, width, ' (0 and 1: no binning)')
         binning_y = _integer('binning_y', d.get('binning_y', 0), 0, height, ' (0 and 1: no binning)')
@@ -564,10 +580,11 @@ class CameraCalibration:
             raise CalibrationFileError(_file_vocabulary(str(exc))) from None
 
     # --- INI (parse_ini.cpp) ------------------------------------------------------------------
-    def to_ini(self, precision: Optional[int] = None) -> str:
+    def to_ini(self, precision: Optional[int] = None, comments: Sequence[str] = ()) -> str:
         """parse_ini.cpp's writeCalibrationIni layout, character for character. Its numbers are
         ``std::fixed`` with 5 decimals (``precision=5`` gives exactly its bytes); by default
         they are exact (shortest round-trip text), which its reader (``operator>>``) reads too.
+        ``comments``: lines put first as ``# `` comments, which its reader skips.
 
         Like writeCalibrationIni, only plumb_bob with 5 coefficients can be written; camera
         names ``image`` and ``externals`` would read back as those sections."""
@@ -584,7 +601,8 @@ class CameraCalibration:
         def matrix(m):  # SimpleMatrix operator<<: "v v v \n" per row
             return ''.join(''.join(f'{number(v)} ' for v in row) + '\n' for row in np.atleast_2d(m))
 
-        text = f'# Camera intrinsics\n\n[image]\n\nwidth\n{self.width}\n\nheight\n{self.height}\n\n'
+        text = ''.join(line + '\n' for line in comment_lines(comments))
+        text += f'# Camera intrinsics\n\n[image]\n\nwidth\n{self.width}\n\nheight\n{self.height}\n\n'
         extra = self._extra_fields()
         for key in ('binning_x', 'binning_y'):
             if key in extra:
@@ -606,12 +624,13 @@ class CameraCalibration:
         return _parse_ini(cls, text)
 
     # --- files --------------------------------------------------------------------------------
-    def file_text(self, path: str) -> str:
-        """The content ``save(path)`` writes: YAML or INI by the extension of ``path``."""
-        return self.to_ini() if _format_of(path) == 'ini' else self.to_yaml()
+    def file_text(self, path: str, comments: Sequence[str] = ()) -> str:
+        """The content ``save(path, comments)`` writes: YAML or INI by the extension of ``path``."""
+        return self.to_ini(comments=comments) if _format_of(path) == 'ini' else self.to_yaml(comments)
 
-    def save(self, path: str):
-        """Write this calibration to ``path`` (YAML or INI by its extension), all or nothing:
+    def save(self, path: str, comments: Sequence[str] = ()):
+        """Write this calibration to ``path`` (YAML or INI by its extension), ``comments`` first as
+        ``# `` lines that camera_calibration_parsers and ``load`` skip, all or nothing:
         the content is built first, then ``atomic_file.write_atomically`` replaces the file (old
         or new, never a mix; symlinks written through; the mode kept; a read-only file refused).
         Raises CalibrationSaveError (an OSError) naming the target, never the temporary file;
@@ -619,7 +638,7 @@ class CameraCalibration:
         """
         path = os.fspath(path)
         try:
-            data = self.file_text(path).encode('utf-8')
+            data = self.file_text(path, comments).encode('utf-8')
         except CalibrationFileError as exc:
             raise CalibrationSaveError(path, str(exc)) from None
         write_atomically(path, data, CalibrationSaveError)
@@ -644,6 +663,13 @@ class CameraCalibration:
             return cls.from_ini_text(text) if fmt == 'ini' else cls.from_yaml_text(text)
         except CalibrationFileError as exc:
             raise CalibrationFileError(f'{path}: {exc}') from None
+
+
+def comment_lines(comments: Sequence[str]) -> List[str]:
+    """``comments`` as ``# `` lines, each on one line (line breaks and runs of blanks made one
+    space), which both file formats' readers skip: YAML comments, and parse_ini.cpp skips every
+    line whose first non-blank character is '#'."""
+    return ['# ' + ' '.join(str(comment).split()) for comment in comments]
 
 
 _YAML_KEYS = ('image_width', 'image_height', 'camera_name', 'camera_matrix', 'distortion_model',
@@ -1001,6 +1027,7 @@ def summary_text(summary: dict) -> str:
     spec = ', '.join(f'{k} {v:g} px' if k == 'circle_diameter' else f'{k} {v:g} deg'
                      for k, v in summary['spec'].items())
     K = summary['K']
+    note = stand_in_note(summary['distortion_model'], summary['D'])
     lines = [
         f"camera    {summary['width']} x {summary['height']} px, {spec}",
         f"model     {summary['model']}" + (
@@ -1009,7 +1036,8 @@ def summary_text(summary: dict) -> str:
         'omega     ' + ('- (not the paper\'s model)' if summary['omega'] is None else f"{summary['omega']:.9g} (1/px)"),
         f"f         {summary['f']:.4f} px",
         f"K         [[{K[0][0]:.4f}, 0, {K[0][2]:.2f}], [0, {K[1][1]:.4f}, {K[1][2]:.2f}], [0, 0, 1]]",
-        f"D         {summary['distortion_model']} [{', '.join(f'{d:.9g}' for d in summary['D'])}]",
+        f"D         {summary['distortion_model']} [{', '.join(f'{d:.9g}' for d in summary['D'])}]"
+        + (f' ({note})' if note else ''),
         f"fit error {summary['fit_error_px']:.2g} px (max over the image)",
         'FOV       ' + ', '.join(f"{k[0]} {'-' if summary[k] is None else format(summary[k], '.3f')}"
                                  for k in ('hfov', 'vfov', 'dfov'))

@@ -80,6 +80,41 @@ def new_camera_matrix(camera: CameraModel, balance: float = 0.0, fov_scale: floa
     return np.array([[new_f[0], 0.0, new_c[0]], [0.0, new_f[1], new_c[1]], [0.0, 0.0, 1.0]])
 
 
+def principal_point_camera_matrix(camera: CameraModel, balance: float = 0.0,
+                                  fov_scale: float = 1.0) -> np.ndarray:
+    """The rectified pinhole camera with its principal point at ``camera``'s own (the optical axis
+    stays at the pixel where the raw image has it), as ROS camera_calibration writes P for a
+    fisheye (calibrator.py, ``set_alpha``: P = K with the focal length scaled). The focal length
+    keeps ``new_camera_matrix``'s meaning of ``balance`` (0: the tightest edge, no black border at
+    the edge midpoints; 1: every edge midpoint kept) and ``fov_scale``, measured from that
+    principal point instead of from the mean of the edge midpoints.
+
+    Why not ``new_camera_matrix`` (OpenCV's estimateNewCameraMatrixForUndistortRectify) for a
+    calibrated camera: it centres P on the mean of the undistorted edge midpoints, which for a
+    lens whose edges are near 90 degrees off-axis is dominated by whichever edge is nearer 90
+    degrees: a 172-degree lens 1 px off-centre gets a P principal point over 100 px from the
+    image centre, and the rectified image shows the scene off-centre. For a camera centred in its
+    image both agree (up to OpenCV's integer division of an odd image side)."""
+    if not 0.0 <= balance <= 1.0:
+        raise ValueError(f'balance = {balance!r} is invalid: allowed: 0 to 1')
+    if not fov_scale > 0.0 or not np.isfinite(fov_scale):
+        raise ValueError(f'fov_scale = {fov_scale!r} is invalid: allowed: greater than 0')
+    w, h = camera.width, camera.height
+    cx, cy = float(camera.cx), float(camera.cy)
+    edges = np.array([(w // 2, 0), (w, h // 2), (w // 2, h), (0, h // 2)], dtype=float)  # new_camera_matrix's
+    pts = camera.undistort(edges)
+    if not np.all(np.isfinite(pts)):
+        pts = _edge_points_within_reach(camera, edges)
+    aspect = camera.fx / camera.fy
+    pts = pts * np.array([1.0, aspect])
+    (minx, miny), (maxx, maxy) = pts.min(axis=0), pts.max(axis=0)
+    if not (0.0 < cx < w and 0.0 < cy < h and minx < 0.0 < maxx and miny < 0.0 < maxy):
+        return new_camera_matrix(camera, balance, fov_scale)  # the principal point is not inside the edges
+    focals = [cx / -minx, (w - cx) / maxx, cy * aspect / -miny, (h - cy) * aspect / maxy]
+    f = (balance * min(focals) + (1.0 - balance) * max(focals)) / fov_scale
+    return np.array([[f, 0.0, cx], [0.0, f / aspect, cy], [0.0, 0.0, 1.0]])
+
+
 def _map_threads(rows: int) -> int:
     return max(1, min(os.cpu_count() or 1, -(-rows // _MAP_ROWS_PER_CHUNK)))
 
