@@ -20,7 +20,7 @@ import pytest
 import yaml
 
 import zeroshot_calib_ros.cli as cli
-from cli_run import run_main
+from cli_run import run_main, same_result
 from test_calibration import TRUE, spec_of, synthetic_corners
 from zeroshot_calib_ros.core import CameraCalibration, CameraSpec, solve_zero_shot
 from zeroshot_calib_ros.core.ros_data.calibration_file import NONZERO_EPSILON
@@ -148,23 +148,6 @@ COMMANDS = {
     'calibrate': lambda corners: ['calibrate', '--corners', str(corners), *spec_flags()],
     'evaluate': lambda corners: ['evaluate', '--corners', str(corners), *spec_flags(), '--runs', '1'],
 }
-
-
-def same_result(a, b, key=None):
-    """The same record: the same keys, texts and flags, numbers to 1e-4 relative. On OpenCV 4.6
-    (Ubuntu 24.04's) two runs of the same fit differ, with or without progress: the board fit's
-    number of evaluations (48 against 41 here), its error bar by 1e-5 relative, and whether
-    evaluate's FC_eq.d.+ZS stops at its evaluation limit (a note). Run time, evaluation counts and
-    notes are not compared."""
-    if key in ('seconds', 'evaluations', 'notes'):
-        return True
-    if isinstance(a, dict):
-        return isinstance(b, dict) and a.keys() == b.keys() and all(same_result(a[k], b[k], k) for k in a)
-    if isinstance(a, list):
-        return isinstance(b, list) and len(a) == len(b) and all(same_result(x, y) for x, y in zip(a, b))
-    if isinstance(a, float) and isinstance(b, (int, float)) and not isinstance(b, bool):
-        return a == pytest.approx(b, rel=1e-4, abs=1e-9)
-    return a == b
 
 
 @pytest.mark.parametrize('command', COMMANDS)
