@@ -247,6 +247,19 @@ def _valid_dict():
     return corners.to_dict()
 
 
+
+@pytest.mark.parametrize('value', [10 ** 400, 100_001])
+def test_a_corners_file_with_an_absurd_image_size_is_one_line_naming_it(tmp_path, value):
+    """Found by the fuzzer: an image_width too large for a float crashed the loader (OverflowError)."""
+    d = _valid_dict()
+    d['image_width'] = value
+    path = tmp_path / 'huge.json'
+    path.write_text(json.dumps(d))
+    with pytest.raises(CornersError) as info:
+        CornerSet.load(str(path))
+    message = str(info.value)
+    assert '\n' not in message and 'image_width' in message and 'allowed' in message and '100000' in message
+
 @st.composite
 def _mutated_file(draw):
     d = _valid_dict()

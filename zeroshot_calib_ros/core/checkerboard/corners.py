@@ -46,6 +46,7 @@ import numpy as np
 
 from ..atomic_file import write_atomically
 from ..file_input import InputFileError, read_capped, read_image
+from ..zeroshot.spec import MAX_IMAGE_SIDE
 
 CORNERS_FORMAT = 'zeroshot-calib-corners'
 CORNERS_VERSION = 1
@@ -203,8 +204,9 @@ class CornerSet:
             if key not in d:
                 raise bad(key, 'is missing')
             v = d[key]
-            if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
-                raise bad(key, f'= {_clip(v)} is invalid: allowed: a positive integer (pixels)')
+            if isinstance(v, bool) or not isinstance(v, int) or not 0 < v <= MAX_IMAGE_SIDE:
+                raise bad(key, f'= {_clip(v)} is invalid: allowed: a positive integer (pixels) up to '
+                          f'{MAX_IMAGE_SIDE}')
             size.append(v)
         b = d.get('board')
         if not isinstance(b, dict):
