@@ -311,3 +311,12 @@ def test_the_documented_principal_points_of_P_on_the_shared_set(tmp_path, capsys
     np.testing.assert_allclose(calibration.K[:2, 2], calibration.P[:2, 2], atol=1e-9)
     np.testing.assert_allclose(new_camera_matrix(calibration.camera())[:2, 2], [279.0, 386.5], atol=3)
     assert 'principal\npoint (399.1, 271.8)) OpenCV\'s rule gave P\'s principal point (279.0, 386.5)' in DOC
+
+
+def test_the_top_level_help_lists_every_exit_status(capsys):
+    """`zeroshot-calib --help` (docs/cli_output.md): what 0, 1, 2 and 3 mean."""
+    status, out, _ = run_main(['--help'], capsys)
+    text = ' '.join(out.split())
+    assert status == 0
+    assert all(f'{code} ' in text for code in ('0 done', '1 some --batch rows failed', '2 bad input', '3 refine / calibrate'))
+    assert 'did not adopt' in text and 'zero-shot camera' in text

@@ -333,7 +333,7 @@ def test_the_calibration_commands_run_as_written_on_the_shared_images(tmp_path):
 
 
 CHECKED = {
-    # run by test_cli_output.py (its exit-status epilog; FC_eq.d.'s P on the shared images)
+    # run by test_cli_output.py (the exit statuses of --help; FC_eq.d.'s P on the shared images)
     'zeroshot-calib --help',
     "zeroshot-calib calibrate '../shared/data/ros_fisheye_800x503/left-*.png' --yaml camera.yaml",
     # run by test_report.py::test_the_concrete_commands_of_docs_report_md_run_and_write_their_pictures
