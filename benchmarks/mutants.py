@@ -1883,8 +1883,8 @@ MUTANTS = [
     dict(
         id='cli-refine-refused-file-without-comment',
         file=f'{PKG}/cli.py',
-        old="        _save_calibration(calibration, args.yaml, [refused[0]] if refused else ())\n    if canvas",
-        new="        _save_calibration(calibration, args.yaml)\n    if canvas",
+        old="        _save_calibration(calibration, args.yaml, [refused[0]] if refused else ())\n    written = [",
+        new="        _save_calibration(calibration, args.yaml)\n    written = [",
         behaviour='refine not adopted: the file written says in a # comment that it holds the zero-shot camera',
         tests=['test/test_refine_cli.py::test_a_refused_refinement_says_so_in_the_file_on_stderr_and_in_its_exit_status'],
     ),

@@ -1059,13 +1059,19 @@ def _calibrated_P(calibration, camera, args):
     return dataclasses.replace(calibration, P=P)
 
 
-def _cmd_calibrate(args):
-    progress = _progress_line(args, 'calibrate:')
+def _with_progress(args, label, run):
+    """``run(args, progress)`` with the verb's progress line (None where it is not shown), the line
+    ended whatever happens."""
+    progress = _progress_line(args, label)
     try:
-        return _calibrate(args, progress)
+        return run(args, progress)
     finally:
         if progress is not None:
             progress.close()
+
+
+def _cmd_calibrate(args):
+    return _with_progress(args, 'calibrate:', _calibrate)
 
 
 def _calibrate(args, progress):
@@ -1315,12 +1321,7 @@ def _evaluation_spec(args, corners):
 
 
 def _cmd_evaluate(args):
-    progress = _progress_line(args, 'evaluate:')
-    try:
-        return _evaluate(args, progress)
-    finally:
-        if progress is not None:
-            progress.close()
+    return _with_progress(args, 'evaluate:', _evaluate)
 
 
 def _evaluate(args, progress):
