@@ -136,6 +136,33 @@ def test_one_fov_says_what_it_assumed_and_its_error_bar_is_the_readmes():
     assert _error_bar(cli(SAMPLE_COMMAND).stdout) == pytest.approx(two, abs=0.02) and one > 3 * two
 
 
+RECTIFY_COMMAND = ('zeroshot-calib rectify benchmarks/data/real_cameras/mynteye_s_jpl/left_fisheye_img_0.png '
+                   '-o rectified.png --hfov 121.4 --vfov 76 --dfov 147.3')
+
+
+def test_the_readme_rectify_command_straightens_the_photo_in_the_repository(tmp_path):
+    """A newcomer's path after `make run`: `pip install .`, then this README command, run as written
+    from a directory with the repository's benchmarks/: one summary line, a 752x480 pinhole image of
+    the photo written, the library's rectification of the spec's zero-shot camera."""
+    assert RECTIFY_COMMAND in ' '.join(README.split())
+    (tmp_path / 'benchmarks').symlink_to(REPO / 'benchmarks')
+    result = cli(RECTIFY_COMMAND, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert len(result.stdout.splitlines()) == 1 and result.stdout.startswith('wrote rectified.png: 752x480 pinhole')
+    import cv2
+    import numpy as np
+    from zeroshot_calib_ros.core import CameraSpec, Rectifier, solve_zero_shot
+    raw = cv2.imread(str(MYNTEYE / 'left_fisheye_img_0.png'), cv2.IMREAD_UNCHANGED)
+    out = cv2.imread(str(tmp_path / 'rectified.png'), cv2.IMREAD_UNCHANGED)
+    assert out.shape == raw.shape and out.shape[:2] == (480, 752)
+    # the library's rectification of the zero-shot camera of that spec (test_rectify.py shows it
+    # straightens lines), not the photo copied or another camera's
+    camera = solve_zero_shot(CameraSpec(752, 480, hfov=121.4, vfov=76, dfov=147.3)).camera
+    expected = Rectifier(camera).rectify(raw)
+    assert np.mean(np.abs(out.astype(float) - expected.astype(float)) > 2) < 0.01
+    assert np.mean(np.abs(out.astype(float) - raw.astype(float)) > 2) > 0.3
+
+
 REFINE_COMMAND = ('zeroshot-calib refine benchmarks/data/real_cameras/mynteye_s_jpl/left_fisheye_img_0.png '
                   '--hfov 121.4 --vfov 76 --dfov 147.3 --yaml mynteye_left.yaml')
 
@@ -333,6 +360,7 @@ def test_the_calibration_commands_run_as_written_on_the_shared_images(tmp_path):
 
 
 CHECKED = {
+    RECTIFY_COMMAND,
     # run by test_cli_output.py (the exit statuses of --help; FC_eq.d.'s P on the shared images)
     'zeroshot-calib --help',
     "zeroshot-calib calibrate '../shared/data/ros_fisheye_800x503/left-*.png' --yaml camera.yaml",
