@@ -37,7 +37,7 @@ ROSDEP_KEY_OF_MODULE = {
     'rclpy': 'rclpy', 'rcl_interfaces': 'rcl_interfaces', 'sensor_msgs': 'sensor_msgs',
     'diagnostic_msgs': 'diagnostic_msgs', 'numpy': 'python3-numpy', 'scipy': 'python3-scipy',
     'cv2': 'python3-opencv', 'yaml': 'python3-yaml', 'launch': 'launch', 'launch_ros': 'launch_ros',
-    'ament_index_python': 'ament_index_python',
+    'ament_index_python': 'ament_index_python', 'argcomplete': 'python3-argcomplete',
 }
 
 
