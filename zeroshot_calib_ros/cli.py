@@ -1533,7 +1533,8 @@ def _one_line(exc) -> str:
 def _complete(parser):
     """Tab completion with argcomplete (as ros2cli has it), only when it is installed and the shell
     asks for completions (argcomplete's shell hook sets _ARGCOMPLETE); then it prints them and
-    exits. Nothing is imported otherwise; pip does not install argcomplete (package.xml lists it for rosdep, as ros2cli does). Enable it in bash with
+    exits. Nothing is imported otherwise; pip does not install argcomplete (package.xml lists it
+    for rosdep, as ros2cli does). Enable it in bash with
     eval "$(register-python-argcomplete zeroshot-calib)"."""
     if '_ARGCOMPLETE' not in os.environ:
         return
