@@ -164,6 +164,7 @@ class ZeroShotCalibNode(Node):
         self._rect_ever_subscribed = False
         self._ahead_jobs = []  # MapJobs of the maps built when image_rect got a subscriber
         self._last_size = None  # (width, height) of the last frame that got a CameraInfo
+        self._failed_maps = {}  # (id(active), width, height) -> (active, why) of maps that failed to build
         self._out_buffer = None
         self._rect_msg = Image()
         self._info_cache = (None, None)  # (calibration, its CameraInfo), reused frame after frame
@@ -412,6 +413,7 @@ class ZeroShotCalibNode(Node):
         if not active.rectify_enabled or binning_or_roi_reason(active.calibration):
             return []
         self._ahead_jobs = [job for job in self._ahead_jobs if not job.finished.is_set()]
+        self._failed_maps.clear()  # tried again for the new subscriber
         sizes = [active.size]
         if self._last_size is not None and self._last_size != active.size:
             width, height = self._last_size
@@ -591,13 +593,19 @@ class ZeroShotCalibNode(Node):
         reason = binning_or_roi_reason(calibration)
         if reason:
             raise FrameSkipped('binning_roi', reason)
+        failed = self._failed_maps.get((id(active), width, height))
+        if failed is not None and failed[0] is active:
+            raise FrameSkipped('maps_failed', f'rectification maps of {width}x{height} could not be built '
+                               f'({failed[1]}); frames of that size are not rectified')
         if (width, height) != active.size:
             try:
                 check_map_budget(width, height, self._map_budget_bytes - map_bytes(*active.size),
                                  what='rectification maps of this frame size (beside the configured size)')
             except MapBudgetExceeded as exc:
                 raise FrameSkipped('maps_budget', str(exc)) from None
-            self._builder.request_size(active, width, height)
+        # (the configured size's maps too, when they are missing: being built since image_rect got
+        # a subscriber, the request returns that build)
+        self._builder.request_size(active, width, height)
         raise FrameSkipped('maps_pending', f'rectification maps of {width}x{height} are being built; '
                            'frames of that size are not rectified until they are ready')
 
@@ -842,6 +850,7 @@ class ZeroShotCalibNode(Node):
             if job.size is not None:
                 if job.error is not None:
                     self._stats['size_maps_failed'] += 1
+                    self._failed_maps[(id(job.active), *job.size)] = (job.active, str(job.error))
                     self.get_logger().warning(f'rectification maps of {job.size[0]}x{job.size[1]} not built: '
                                               f'{job.error}; frames of that size stay unrectified')
                 else:
@@ -891,6 +900,7 @@ class ZeroShotCalibNode(Node):
         if job.active.generation <= self._active.generation:
             return  # superseded while it was built
         self._active = job.active
+        self._failed_maps.clear()
         if job.values is not None:
             self._values_in_force = job.values
         self._stats['calibrations_adopted'] += 1
