@@ -599,11 +599,19 @@ def cost_lines(results):
                          f"{'baseline' if system.startswith('baseline') else ('EventsExecutor' if '_events' in system else 'SingleThreaded')} | "
                          f"{fmt(e['p30']['latency_ms'][50], 2)} | {fmt(e['p30']['latency_ms'][99], 2)} | "
                          f"{fmt(cpu(e), 2)} | {e['p30']['lost']}/{e['p30']['sent']} | {fmt(e['max_rate'])} | "
-                         f"{facts.get('maps_built', 'n/a')} | {facts.get('rectify') or 'n/a'} |")
+                         f"{maps_text(facts)} | {facts.get('rectify') or 'n/a'} |")
     lines += ['', 'Latency: publisher stamp -> subscriber receive, of image_rect when subscribed, of camera_info '
               'when not (median of the rounds). Max fps: highest offered rate with <= 1 % loss of those messages. '
               '"maps built": rectification map builds in the node\'s log over the run (the last round).', '']
     return lines
+
+
+def maps_text(facts: dict) -> str:
+    """'1 (503 ms)': the map builds of a node's log and how long each took."""
+    if 'maps_built' not in facts:
+        return 'n/a'
+    times = facts.get('maps_build_ms') or []
+    return f"{facts['maps_built']}" + (f" ({', '.join(f'{ms} ms' for ms in times)})" if times else '')
 
 
 def fault_lines(results):
@@ -751,7 +759,8 @@ def node_log_facts(child) -> dict:
         text = Path(path).read_text() if path else ''
     except OSError:
         text = ''
-    facts = {'maps_built': len(re.findall(r'rectification maps of .* built in', text))}
+    built = [int(ms) for ms in re.findall(r'rectification maps of .* built in (\d+) ms', text)]
+    facts = {'maps_built': len(built), 'maps_build_ms': built}
     for key in ('executor', 'rectify'):
         found = re.search(rf'^  {key} +(.*?)( \(maps at most.*)?$', text, re.M)
         facts[key] = found.group(1).strip() if found else None
@@ -793,8 +802,11 @@ def _run_system_once(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir)
         p30 = s.phase('30 fps', 30, cfg['p30_seconds'])
         faults_after, cpu_after = bc.proc_counters(s.target.pid)
         frames = max(1, len(p30.sent))  # per frame offered (0 drops at 30 fps: the same as delivered)
-        sat = s.phase('saturation', 0, cfg['sat_seconds'])
-        rate, trials = max_sustained_rate(s, sat.output_rate, cfg['bisect_steps'], cfg['trial_seconds'])
+        if cfg.get('p30_only'):  # latency, drops and CPU at 30 fps only: no highest rate
+            sat, rate, trials = p30, float('nan'), []
+        else:
+            sat = s.phase('saturation', 0, cfg['sat_seconds'])
+            rate, trials = max_sustained_rate(s, sat.output_rate, cfg['bisect_steps'], cfg['trial_seconds'])
         prof = None
         if profile_dir is not None and system in ('node', 'node_events', 'baseline'):
             path = Path(profile_dir) / f'pyspy-{system}-{size}-{enc}.txt'
@@ -844,6 +856,8 @@ def main(argv=None):
     p.add_argument('--relay-executors', default='single', help='the same for the relays')
     p.add_argument('--no-subscriber', action='store_true', help='also measure the node (and the baseline) '
                    'with no image_rect subscriber: the subscriber process takes camera_info only')
+    p.add_argument('--p30-only', action='store_true', help='measure the 30 fps phase only (latency, drops, '
+                   'CPU per frame), not the highest rate: more rounds in the same time')
     p.add_argument('--out', default=str(bc.RESULTS / 'rectify_throughput.md'))
     p.add_argument('--render', default=None, metavar='JSON', help='only re-render the report of a previous run')
     args = p.parse_args(argv)
@@ -859,6 +873,7 @@ def main(argv=None):
             'profile_seconds': 5} if args.quick else
            {'p30_seconds': 10, 'sat_seconds': 3, 'trial_seconds': 3, 'bisect_steps': 4, 'remap_repeat': 40,
             'profile_seconds': 10})
+    cfg['p30_only'] = args.p30_only
     skip = set(args.skip.split(','))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

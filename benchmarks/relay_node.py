@@ -2,7 +2,8 @@
 """Pass-through relay: image_raw -> image_rect, unchanged: the floor a rectifying node cannot beat.
 
 Same process layout and QoS as the zeroshot_calib node with a best-effort camera (KEEP_LAST 5,
-best effort, volatile, on both topics), same executor as the node (by default rclpy's SingleThreadedExecutor; see --executor).
+best effort, volatile, on both topics), same executor as the node (by default rclpy's
+SingleThreadedExecutor; see --executor).
 
     --mode raw   (default) takes the serialised message and republishes those bytes: no
                  deserialisation at all, the cheapest a Python node can forward a frame.

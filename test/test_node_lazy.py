@@ -145,14 +145,16 @@ def test_without_a_subscriber_a_calibration_is_in_force_at_once_and_no_maps_are_
     assert 'rectification maps' not in node.log
 
 
-def test_a_subscriber_joining_a_stream_gets_every_frame_from_its_first_on(peer, start_node):
-    """30 fps of 960x540 frames; a subscriber joins mid-stream. The maps are built when it
-    appears, and the frames that come while they are built wait for them: no frame is skipped
-    for want of maps, every frame is either not remapped (no subscriber yet) or rectified, and
-    the subscriber receives every frame from its first one on."""
-    width, height = 960, 540
-    node = start_node('--ros-args', '-p', f'width:={width}', '-p', f'height:={height}', '-p', 'hfov:=118',
-                      '-p', 'vfov:=69', '-p', 'rectify:=true')
+@pytest.mark.parametrize('executor', ['single', 'events'])
+def test_a_subscriber_joining_a_stream_gets_every_frame_from_its_first_on(peer, start_node, monkeypatch, executor):
+    """30 fps of 640x360 frames; a subscriber joins mid-stream. The maps are built when it
+    appears (with the EventsExecutor: when the first frame sees it), and a frame that comes while
+    they are built waits for them: no frame is skipped for want of maps, every frame is either
+    not remapped (no subscriber yet) or rectified, and the subscriber receives every frame from
+    its first one on."""
+    monkeypatch.setenv('ZEROSHOT_CALIB_EXECUTOR', executor)
+    width, height = WIDTH, HEIGHT
+    node = start_node('--ros-args', *SPEC)
     diagnostics = peer.collect(DiagnosticArray, '/diagnostics', qos())
     pub = peer.image_publisher(RELIABLE)
     image = texture(height, width, seed=1)
@@ -271,3 +273,38 @@ def test_the_events_executor_adopts_a_refinement_with_image_rect_subscribed(peer
         peer.spin_for(1 / 15)
     peer.spin_until(lambda: len(rects) >= count + 10, what='image_rect after the refined calibration')
     assert node.alive() and 'Exception' not in node.log
+
+
+def test_the_docs_command_starts_the_node_on_the_events_executor(peer, start_node, monkeypatch):
+    """docs/performance.md's `ZEROSHOT_CALIB_EXECUTOR=events ros2 run zeroshot_calib_ros node
+    --ros-args ...` (the installed executable, what ros2 run starts): the start-up block names the
+    EventsExecutor and lazy rectification, as the doc quotes them; CameraInfo comes; Ctrl-C ends it."""
+    import re
+    import shlex
+    from ros_peer import REPO
+    line = next(l for l in (REPO / 'docs' / 'performance.md').read_text().splitlines()
+                if l.startswith('ZEROSHOT_CALIB_EXECUTOR='))
+    words = shlex.split(line)
+    variable, value = words[0].split('=')
+    assert words[1:5] == ['ros2', 'run', 'zeroshot_calib_ros', 'node']
+    monkeypatch.setenv(variable, value)
+    node = start_node(*words[5:])
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos and 'memory     ' in node.log, timeout=20, what='camera_info and the start-up block')
+    doc = (REPO / 'docs' / 'performance.md').read_text()
+    for quoted in re.findall(r'`(executor   [^`]*)`', doc) + ['rectify    on, lazy: no subscriber yet (maps at most max_map_memory_mb = ']:
+        assert quoted in node.log, quoted
+    assert infos[0].width == 1920
+    node.process.send_signal(signal.SIGINT)
+    assert node.process.wait(15) == 0
+
+
+def test_an_executor_value_that_names_none_is_a_warning_and_the_default_runs(peer, start_node, monkeypatch):
+    monkeypatch.setenv('ZEROSHOT_CALIB_EXECUTOR', 'fast')
+    node = start_node('--ros-args', *SPEC)
+    infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
+    peer.spin_until(lambda: infos and 'memory     ' in node.log, timeout=20, what='camera_info and the start-up block')
+    warning = "ZEROSHOT_CALIB_EXECUTOR='fast' is none of single, events: the default, single, is used"
+    assert f'[WARN]' in node.log and f'executor: {warning}' in node.log
+    assert f'executor   SingleThreadedExecutor ({warning})' in node.log
+    assert node.alive()

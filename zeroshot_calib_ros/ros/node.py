@@ -20,7 +20,8 @@ image_proc does nothing until its output is subscribed. CameraInfo goes out with
 either way. When a subscriber appears (its match event, or the count read by the next frame), the
 maps of the configured size and of the last frame's size are built at once, on every core; a
 frame that comes while they are being built waits for them up to FIRST_FRAME_WAIT_SECONDS, so
-the first frame after a subscriber appears is rectified. A calibration adopted while nobody
+the first frame after a subscriber appears is rectified (with the EventsExecutor there is no
+match event: the first frame starts the maps and waits). A calibration adopted while nobody
 subscribes is in force at once (no maps to wait for). The start-up log and /diagnostics
 (``rectify``, ``image_rect_subscribers``, ``frames_rectified``, ``frames_not_rectified_no_subscriber``)
 say which state the node is in.
@@ -57,11 +58,11 @@ import rclpy  # noqa: E402
 import rclpy.executors  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
 from rcl_interfaces.msg import SetParametersResult  # noqa: E402
+from rclpy.event_handler import PublisherEventCallbacks  # noqa: E402
 from rclpy.exceptions import ParameterException  # noqa: E402
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from rclpy.event_handler import PublisherEventCallbacks  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 from sensor_msgs.srv import SetCameraInfo  # noqa: E402
@@ -103,10 +104,10 @@ FRAME_PATH_ENV = 'ZEROSHOT_CALIB_FRAME_PATH'
 _INFO_TEMPLATES_CACHED = 16
 FIRST_FRAME_WAIT_SECONDS = 0.25
 """How long a frame waits for the maps being built because image_rect just got a subscriber (so
-that the first frame after a subscriber appears is rectified): a 1080p build on two cores takes
-0.05-0.2 s. Bounded so that the frames queued behind it (image_raw keeps 10) are not lost; a
-frame that comes later than that while the maps are still being built (4K) is counted as
-maps_pending and not rectified."""
+that the first frame after a subscriber appears is rectified): 1080p maps took 0.19-0.58 s on
+every core of a 2-core machine busy with other jobs, 640x360 maps 0.06-0.09 s. Bounded so that
+the frames queued behind it (image_raw keeps 10) are not lost; the frames that come while maps
+take longer are counted as maps_pending and not rectified."""
 REFINE_PARAMETERS = ('refine', 'refine_interval')
 REFINABLE_SOURCES = ('spec', 'refined')
 """Sources of a calibration that ``refine`` refines (never a file's or set_camera_info's)."""
@@ -137,10 +138,16 @@ class ZeroShotCalibNode(Node):
     """Publishes the zero-shot CameraInfo; rectifies image_raw into image_rect when asked."""
 
     def __init__(self, heap_text: str = 'allocator unchanged (the node was constructed outside main())',
-                 executor_text: str = 'whichever spins the node (it was constructed outside main())', **kwargs):
+                 executor_text: str = 'whichever spins the node (it was constructed outside main())',
+                 matched_events: bool = True, **kwargs):
         super().__init__(NODE_NAME, start_parameter_services=False, **kwargs)
         self._heap_text = heap_text
         self._executor_text = executor_text
+        # image_rect's matched-subscription events: not with the EventsExecutor, which has crashed
+        # destroying a publisher with event callbacks while subscribers came and went (rclpy
+        # issue 1644); the QoS matching destroys image_rect's publisher once a camera appears.
+        # Without them, the first frame after a subscriber appears starts its maps and waits.
+        self._matched_events = matched_events
         # Start-up (issue 14): what the first CameraInfo needs, then that CameraInfo, then the
         # map build, then the rest (services, the image endpoints, timers, the log: rclpy's
         # first log lines cost tens of ms each, so information lines wait until the CameraInfo
@@ -376,9 +383,9 @@ class ZeroShotCalibNode(Node):
         """image_rect is advertised only while rectify is on (it would collide with image_proc's)."""
         if self._active.rectify_enabled and self._rect_pub is None:
             # matched: a subscriber's arrival starts its maps before the next frame comes
-            self._rect_pub = self.create_publisher(
-                Image, 'image_rect', self._image_qos(self._reliability),
-                event_callbacks=PublisherEventCallbacks(matched=self._on_rect_matched))
+            events = PublisherEventCallbacks(matched=self._on_rect_matched) if self._matched_events else None
+            self._rect_pub = self.create_publisher(Image, 'image_rect', self._image_qos(self._reliability),
+                                                   event_callbacks=events)
         elif not self._active.rectify_enabled and self._rect_pub is not None:
             self.destroy_publisher(self._rect_pub)
             self._rect_pub = None
@@ -1174,7 +1181,8 @@ def _main(args):
     try:
         executor, name, why = create_executor(choice)
         why = why or asked
-        node = ZeroShotCalibNode(heap_text=heap_text, executor_text=executor_text(name, why))
+        node = ZeroShotCalibNode(heap_text=heap_text, executor_text=executor_text(name, why),
+                                 matched_events=name != 'events')
     except (SpecError, CalibrationFileError, ParameterException) as exc:
         print(f'{NODE_NAME}: error: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
