@@ -7,7 +7,7 @@ executor thread through ``executor.create_task``, which both executors take from
 the EventsExecutor refuses guard conditions.
 
 The EventsExecutor of rclpy 7.1 (ROS 2 Jazzy) is spun with ``spin_once`` in a loop: its
-``spin()`` kept a core busy and never ran a timer in our tests (rclpy 7.1.6 from PyPI).
+``spin()`` kept a core busy and never ran a timer in our tests (rclpy 7.1.6, the ros-rclpy wheel).
 """
 from __future__ import annotations
 
