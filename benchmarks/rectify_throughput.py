@@ -21,17 +21,27 @@ subscriber, through the project's shared-memory Fast DDS profile:
   the last frame (slower than back to back). ``node - remap relay`` is what the node's own work
   costs (frame checks, calibration lookups, counters, its executor's other entities).
 
+* node variants (``--executors``, ``--no-subscriber``): the node spun by rclpy's EventsExecutor
+  (ZEROSHOT_CALIB_EXECUTOR=events: ``node_events``), and the node (and the baseline) with no
+  image_rect subscriber (``node_nosub``, ``node_events_nosub``, ``baseline_nosub``): the
+  subscriber process then takes camera_info only, which is what "received" and latency measure.
+
 Measured per case: latency (publisher stamp -> subscriber receive, wall clock) at 30 fps and the
-frames dropped there; the maximum sustained rate (highest offered rate with <= 1 % loss, found by
-bisection after a saturation run); the node's peak RSS. Targets (issues #6, #14), evaluated at
-every size and reported for 1080p:
+frames dropped there; the CPU each process under test (node, relay, remap relay) used per frame
+at 30 fps (user + system time from /proc/PID/stat over the phase, divided by the frames sent); the
+maximum sustained rate (highest offered rate with <= 1 % loss, found by bisection after a
+saturation run); the node's peak RSS. Targets (issues #6, #14), evaluated at every size and
+reported for 1080p:
 
     median latency(node)   <= median latency(relay) + remap + 1 ms
     max sustained rate(node) >= 0.9 / (1 / rate(relay) + remap)
     max sustained rate(node) >= 1.15 x max sustained rate(baseline)   (1080p bgr8 and mono8)
 
 and beside them the same two figures of the remap relay, which meets them only if a remap in the
-stream is as fast as a back-to-back one.
+stream is as fast as a back-to-back one. Cost per frame (with ``--no-subscriber``):
+
+    CPU per frame(node, image_rect subscribed) <= 1.1 x CPU per frame(remap relay)
+    CPU per frame(node, no image_rect subscriber) <= 1.2 x CPU per frame(relay)
 
 Start the full run on a quiet machine: the 1-min load average (``uptime``) at the start and
 before every case is in the results.
@@ -44,6 +54,8 @@ frame: speed and pixel differences; and start-up / map-rebuild / memory figures
     .venv/bin/python benchmarks/rectify_throughput.py            # full run, baseline: message path
     .venv/bin/python benchmarks/rectify_throughput.py --quick    # short run (~5 min)
     .venv/bin/python benchmarks/rectify_throughput.py --sizes 1920x1080 --encodings bgr8 --profile
+    .venv/bin/python benchmarks/rectify_throughput.py --sizes 1920x1080 --executors single,events \
+        --no-subscriber --baseline 1e01175 --skip compare,startup        # cost per frame
 
 Prints a markdown report and writes it to benchmarks/results/rectify_throughput.md (raw numbers
 next to it as .json). Needs the package built (``make build``). Every child process is stopped,
@@ -125,14 +137,17 @@ class Session:
     """publisher -> target -> subscriber in a fresh ROS domain."""
 
     def __init__(self, system, width, height, encoding, log_dir, node_params=(), relay_mode='raw',
-                 info=True, target_env=None, package_dir=None):
+                 info=True, target_env=None, package_dir=None, rect_subscriber=True, executor='single',
+                 tag=None):
         self.system, self.width, self.height, self.encoding = system, width, height, encoding
-        self.tag = f'{system}-{width}x{height}-{encoding}'
+        self.tag = f'{tag or system}-{width}x{height}-{encoding}'
         self.env = bc.ros_env(bc.next_domain())
         self.images, self.infos, self.setdone = {}, {}, []
         self.rss = []
-        sub_argv = [bc.PY, COMMON, 'sub', '--topic', 'image_rect']
-        if system in ('node', 'remap_relay') and info:
+        # without an image_rect subscriber, the frames that come out are the CameraInfo messages
+        self.rect_subscriber = rect_subscriber
+        sub_argv = [bc.PY, COMMON, 'sub', '--topic', 'image_rect' if rect_subscriber else 'none']
+        if system in ('node', 'remap_relay') and (info or not rect_subscriber):
             sub_argv += ['--info-topic', 'camera_info']
         self.sub = bc.Child(sub_argv, self.env, f'{self.tag}-sub', stdin=True, log_dir=log_dir)
         self.sub.wait_line('READY', 60)
@@ -147,10 +162,13 @@ class Session:
             for k, v in params.items():
                 argv += ['-p', f'{k}:={str(v).lower() if isinstance(v, bool) else v}']
         elif system == 'remap_relay':
-            argv = [bc.PY, bc.RELAY, '--mode', 'remap', '--width', width, '--height', height]
+            argv = [bc.PY, bc.RELAY, '--mode', 'remap', '--width', width, '--height', height, '--executor', executor]
         else:
-            argv = [bc.PY, bc.RELAY, '--mode', relay_mode]
-        self.target = bc.Child(argv, {**self.env, **(target_env or {})}, f'{self.tag}-target', log_dir=log_dir)
+            argv = [bc.PY, bc.RELAY, '--mode', relay_mode, '--executor', executor]
+        env = {**self.env, **(target_env or {})}
+        if system == 'node':
+            env['ZEROSHOT_CALIB_EXECUTOR'] = executor
+        self.target = bc.Child(argv, env, f'{self.tag}-target', log_dir=log_dir)
         self.pub = bc.Child([bc.PY, COMMON, 'pub', '--width', width, '--height', height, '--encoding', encoding],
                             self.env, f'{self.tag}-pub', stdin=True, log_dir=log_dir)
         self.pub.wait_line('READY', 90)
@@ -173,6 +191,8 @@ class Session:
         elif line.startswith('I '):
             _, stamp, fx, finite, recv = line.split()
             self.infos[int(stamp)] = (float(fx), finite == '1', int(recv))
+            if not self.rect_subscriber:
+                self.images[int(stamp)] = int(recv)
         elif line.startswith('SETDONE'):
             self.setdone.append(line.split(None, 6))
 
@@ -525,11 +545,81 @@ def stream_floor_lines(results):
     return lines
 
 
+def cost_lines(results):
+    """CPU per frame of every process under test at 30 fps, the executors side by side, with and
+    without an image_rect subscriber, against the targets (node <= 1.1 x remap relay with a
+    subscriber, <= 1.2 x the pass-through relay without one)."""
+    rows = [r for r in results if any(k.endswith('_nosub') or k.startswith('node_events') for k in r)]
+    if not rows:
+        return []
+    nodes = [s for s in ('node', 'node_events', 'baseline', 'node_nosub', 'node_events_nosub', 'baseline_nosub')
+             if any(s in r for r in rows)]
+    labels = {'node': 'node, subscribed', 'node_events': 'node (events), subscribed',
+              'baseline': 'baseline, subscribed', 'node_nosub': 'node, no subscriber',
+              'node_events_nosub': 'node (events), no subscriber', 'baseline_nosub': 'baseline, no subscriber'}
+    floors = [s for s in ('relay', 'relay_events', 'remap_relay', 'remap_relay_events') if any(s in r for r in rows)]
+    cpu = lambda entry: entry.get('cpu_ms_per_frame_median', float('nan'))  # noqa: E731
+    yes = lambda ok: 'yes' if ok else '**no**'  # noqa: E731
+    lines = ['### Cost per frame at 30 fps: CPU of each process under test', '',
+             '| frame | enc | ' + ' | '.join(f'{s} CPU ms/frame' for s in floors + nodes) + ' | '
+             'node / remap relay (<= 1.1) | node no subscriber / relay (<= 1.2) | '
+             'node (events) / remap relay | node (events) no subscriber / relay |',
+             '|---|---|' + '---|' * (len(floors) + len(nodes) + 4)]
+    for r in rows:
+        relay, remap = cpu(r.get('relay', {})), cpu(r.get('remap_relay', {}))
+
+        def ratio(system, floor, limit):
+            if system not in r or not np.isfinite(floor) or floor <= 0:
+                return 'n/a'
+            value = cpu(r[system]) / floor
+            return f'{value:.2f}x ({yes(value <= limit)})'
+        r['cost_ratios'] = {s: (cpu(r[s]) / (remap if not s.endswith('_nosub') else relay))
+                            for s in ('node', 'node_events', 'node_nosub', 'node_events_nosub') if s in r}
+        lines.append(f"| {r['size']} | {r['encoding']} | " +
+                     ' | '.join(fmt(cpu(r[s]), 2) if s in r else 'n/a' for s in floors + nodes) + ' | ' +
+                     f"{ratio('node', remap, 1.1)} | {ratio('node_nosub', relay, 1.2)} | "
+                     f"{ratio('node_events', remap, 1.1)} | {ratio('node_events_nosub', relay, 1.2)} |")
+    lines += ['', 'User + system CPU of the process under test (/proc/PID/stat) over the 30 fps phase divided by the '
+              'frames sent, median of the rounds (the rounds\' values are in the page-fault table below). '
+              'relay: benchmarks/relay_node.py --mode raw (takes and republishes the serialized frame); remap relay: '
+              '--mode remap (CameraInfo + remap + publish, nothing else). "no subscriber": nothing subscribes to '
+              'image_rect; the subscriber process takes camera_info only. baseline: the node before lazy '
+              'rectification (see above), which remaps every frame whoever subscribes.', '']
+    lines += ['### The executors side by side (30 fps latency, CPU, drops; highest rate)', '',
+              '| frame | enc | image_rect | executor | p50 ms | p99 ms | CPU ms/frame | drops at 30 fps | '
+              'max fps | maps built (node log) | rectify (start-up log) |',
+              '|---|---|---|---|---|---|---|---|---|---|---|']
+    for r in rows:
+        for system in ('node', 'node_events', 'node_nosub', 'node_events_nosub', 'baseline', 'baseline_nosub'):
+            if system not in r:
+                continue
+            e = r[system]
+            facts = e.get('diagnostics') or {}
+            lines.append(f"| {r['size']} | {r['encoding']} | {'no subscriber' if system.endswith('_nosub') else 'subscribed'} | "
+                         f"{'baseline' if system.startswith('baseline') else ('EventsExecutor' if '_events' in system else 'SingleThreaded')} | "
+                         f"{fmt(e['p30']['latency_ms'][50], 2)} | {fmt(e['p30']['latency_ms'][99], 2)} | "
+                         f"{fmt(cpu(e), 2)} | {e['p30']['lost']}/{e['p30']['sent']} | {fmt(e['max_rate'])} | "
+                         f"{maps_text(facts)} | {facts.get('rectify') or 'n/a'} |")
+    lines += ['', 'Latency: publisher stamp -> subscriber receive, of image_rect when subscribed, of camera_info '
+              'when not (median of the rounds). Max fps: highest offered rate with <= 1 % loss of those messages. '
+              '"maps built": rectification map builds in the node\'s log over the run (the last round).', '']
+    return lines
+
+
+def maps_text(facts: dict) -> str:
+    """'1 (503 ms)': the map builds of a node's log and how long each took."""
+    if 'maps_built' not in facts:
+        return 'n/a'
+    times = facts.get('maps_build_ms') or []
+    return f"{facts['maps_built']}" + (f" ({', '.join(f'{ms} ms' for ms in times)})" if times else '')
+
+
 def fault_lines(results):
     """Page faults and CPU of each process under test per frame of the 30 fps phase, round by
     round: a frame-sized block faulted in anew every frame shows here (core/ros_data/heap.py)."""
-    systems = [system for system in ('relay', 'remap_relay', 'node', 'baseline')
-               if any(r.get(system, {}).get('faults_per_frame') for r in results)]
+    order = ['relay', 'relay_events', 'remap_relay', 'remap_relay_events', 'node', 'node_events', 'node_nosub',
+             'node_events_nosub', 'baseline', 'baseline_nosub']
+    systems = [system for system in order if any(r.get(system, {}).get('faults_per_frame') for r in results)]
     if not systems:
         return []
     lines = ['### Page faults and CPU per frame at 30 fps (the process under test), round by round', '',
@@ -543,8 +633,9 @@ def fault_lines(results):
     for r in results:
         lines.append(f"| {r['size']} | {r['encoding']} | " + ' | '.join(cell(r.get(s, {})) for s in systems) + ' |')
     lines += ['', 'Minor page faults and user + system CPU of the relay, remap relay or node process over the '
-              '30 fps phase (/proc/PID/stat), divided by the frames it delivered. Every process of the run '
-              'but the baseline sets glibc\'s allocator thresholds at start (`keep_frames_in_heap`).', '']
+              '30 fps phase (/proc/PID/stat), divided by the frames sent. Every process of the run '
+              'but a baseline from before that setting sets glibc\'s allocator thresholds at start '
+              '(`keep_frames_in_heap`).', '']
     return lines
 
 
@@ -596,13 +687,36 @@ def comparison_table(comparisons):
     return '\n'.join(lines)
 
 
+def system_kind(system: str) -> tuple:
+    """(base, executor, image_rect subscribed) of a system's name: 'node_events_nosub' ->
+    ('node', 'events', False); 'remap_relay' -> ('remap_relay', 'single', True)."""
+    subscribed = not system.endswith('_nosub')
+    name = system if subscribed else system[:-len('_nosub')]
+    executor = 'events' if name.endswith('_events') else 'single'
+    return (name[:-len('_events')] if executor == 'events' else name), executor, subscribed
+
+
+def systems_of(remap_relay=True, baseline=False, executors=('single',), no_subscriber=False,
+               relay_executors=('single',)) -> list:
+    """The systems measured per case, in the order they alternate."""
+    suffix = {'single': '', 'events': '_events'}
+    systems = [f'relay{suffix[e]}' for e in relay_executors]
+    if remap_relay:
+        systems += [f'remap_relay{suffix[e]}' for e in relay_executors]
+    systems += [f'node{suffix[e]}' for e in executors]
+    if no_subscriber:
+        systems += [f'node{suffix[e]}_nosub' for e in executors]
+    if baseline:
+        systems += ['baseline'] + (['baseline_nosub'] if no_subscriber else [])
+    return systems
+
+
 def run_throughput(sizes, encodings, cfg, log_dir, profile_dir=None, baseline_dir=None, rounds=1, attempts=3,
-                   remap_relay=True):
-    """relay, remap relay and node (and the baseline node) alternately, ``rounds`` times each;
-    medians over the rounds (a busy shared machine makes single runs noisy)."""
+                   remap_relay=True, executors=('single',), no_subscriber=False, relay_executors=('single',)):
+    """relay, remap relay and node (and the baseline node, the node's variants) alternately,
+    ``rounds`` times each; medians over the rounds (a busy shared machine makes single runs noisy)."""
     results = []
-    systems = (['relay'] + (['remap_relay'] if remap_relay else []) + ['node']
-               + (['baseline'] if baseline_dir else []))
+    systems = systems_of(remap_relay, bool(baseline_dir), executors, no_subscriber, relay_executors)
     for size in sizes:
         w, h = bc.SIZES[size]
         for enc in encodings:
@@ -631,7 +745,26 @@ def combine_rounds(runs):
             'alive': all(r['alive'] for r in runs),
             'non_finite_camera_info': sum(r.get('non_finite_camera_info', 0) for r in runs),
             'faults_per_frame': [r.get('p30_faults_per_frame') for r in runs],
-            'cpu_ms_per_frame': [r.get('p30_cpu_ms_per_frame') for r in runs]}
+            'cpu_ms_per_frame': [r.get('p30_cpu_ms_per_frame') for r in runs],
+            'cpu_ms_per_frame_median': med([r.get('p30_cpu_ms_per_frame', float('nan')) for r in runs]),
+            'others_cores': [r.get('others_cores') for r in runs],
+            'diagnostics': next((r['diagnostics'] for r in reversed(runs) if r.get('diagnostics')), None)}
+
+
+def node_log_facts(child) -> dict:
+    """What the node's log says of a run: the executor and rectify lines of its start-up block,
+    and how many times it built rectification maps (none while nobody subscribes to image_rect)."""
+    path = getattr(child, '_stderr_path', None)
+    try:
+        text = Path(path).read_text() if path else ''
+    except OSError:
+        text = ''
+    built = [int(ms) for ms in re.findall(r'rectification maps of .* built in (\d+) ms', text)]
+    facts = {'maps_built': len(built), 'maps_build_ms': built}
+    for key in ('executor', 'rectify'):
+        found = re.search(rf'^  {key} +(.*?)( \(maps at most.*)?$', text, re.M)
+        facts[key] = found.group(1).strip() if found else None
+    return facts
 
 
 def run_system(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir, attempts=3):
@@ -653,11 +786,13 @@ def run_system(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir, attem
 def _run_system_once(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir):
     size = f'{w}x{h}'
     print(f'# {system} {size} {enc}  (load {open("/proc/loadavg").read().split()[0]})', file=sys.stderr, flush=True)
-    baseline = system == 'baseline'
+    base, executor, subscribed = system_kind(system)
+    baseline = base == 'baseline'
     message_path = baseline and str(baseline_dir) == 'message'
-    s = Session('node' if baseline else system, w, h, enc, log_dir,
+    s = Session('node' if baseline else base, w, h, enc, log_dir,
                 package_dir=baseline_dir if baseline and not message_path else None,
-                target_env={'ZEROSHOT_CALIB_FRAME_PATH': 'message'} if message_path else None)
+                target_env={'ZEROSHOT_CALIB_FRAME_PATH': 'message'} if message_path else None,
+                rect_subscriber=subscribed, executor=executor, tag=system)
     result = {}
     try:
         s.warm_up()
@@ -666,11 +801,14 @@ def _run_system_once(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir)
         faults, cpu = bc.proc_counters(s.target.pid)
         p30 = s.phase('30 fps', 30, cfg['p30_seconds'])
         faults_after, cpu_after = bc.proc_counters(s.target.pid)
-        frames = max(1, len(p30.received))
-        sat = s.phase('saturation', 0, cfg['sat_seconds'])
-        rate, trials = max_sustained_rate(s, sat.output_rate, cfg['bisect_steps'], cfg['trial_seconds'])
+        frames = max(1, len(p30.sent))  # per frame offered (0 drops at 30 fps: the same as delivered)
+        if cfg.get('p30_only'):  # latency, drops and CPU at 30 fps only: no highest rate
+            sat, rate, trials = p30, float('nan'), []
+        else:
+            sat = s.phase('saturation', 0, cfg['sat_seconds'])
+            rate, trials = max_sustained_rate(s, sat.output_rate, cfg['bisect_steps'], cfg['trial_seconds'])
         prof = None
-        if profile_dir is not None and system in ('node', 'baseline'):
+        if profile_dir is not None and system in ('node', 'node_events', 'baseline'):
             path = Path(profile_dir) / f'pyspy-{system}-{size}-{enc}.txt'
             got, _ = profile_target(s, cfg['profile_seconds'], path, max(1.0, 0.9 * rate))
             prof = str(got) if got else None
@@ -680,8 +818,10 @@ def _run_system_once(system, w, h, enc, cfg, log_dir, profile_dir, baseline_dir)
                   'trials': trials, 'peak_rss_mib': s.peak_rss(), 'rss_samples': s.rss[::4],
                   'profile': prof, 'alive': s.target.alive(), 'load_at_start': load,
                   'others_cores': others.cores()}
-        if system in ('node', 'baseline'):
+        if base in ('node', 'baseline'):
             result['non_finite_camera_info'] = sum(1 for v in s.infos.values() if not v[1])
+        if base == 'node':
+            result['diagnostics'] = node_log_facts(s.target)
     finally:
         s.close()
     print(f'#   p50 {result["p30"]["latency_ms"][50]:.2f} ms, lost@30 {result["p30"]["lost"]}, '
@@ -710,6 +850,14 @@ def main(argv=None):
                    'used more than 0.6 cores during it (default 3; 1: as the machine is, the load recorded)')
     p.add_argument('--no-remap-relay', dest='remap_relay', action='store_false',
                    help='do not measure the remap relay (relay_node.py --mode remap) beside the node')
+    p.add_argument('--executors', default='single', help='comma list of the executors the node is measured '
+                   'with: single (rclpy\'s SingleThreadedExecutor, the default) and/or events (its '
+                   'EventsExecutor, ZEROSHOT_CALIB_EXECUTOR=events)')
+    p.add_argument('--relay-executors', default='single', help='the same for the relays')
+    p.add_argument('--no-subscriber', action='store_true', help='also measure the node (and the baseline) '
+                   'with no image_rect subscriber: the subscriber process takes camera_info only')
+    p.add_argument('--p30-only', action='store_true', help='measure the 30 fps phase only (latency, drops, '
+                   'CPU per frame), not the highest rate: more rounds in the same time')
     p.add_argument('--out', default=str(bc.RESULTS / 'rectify_throughput.md'))
     p.add_argument('--render', default=None, metavar='JSON', help='only re-render the report of a previous run')
     args = p.parse_args(argv)
@@ -725,6 +873,7 @@ def main(argv=None):
             'profile_seconds': 5} if args.quick else
            {'p30_seconds': 10, 'sat_seconds': 3, 'trial_seconds': 3, 'bisect_steps': 4, 'remap_repeat': 40,
             'profile_seconds': 10})
+    cfg['p30_only'] = args.p30_only
     skip = set(args.skip.split(','))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -754,7 +903,10 @@ def main(argv=None):
     if 'throughput' not in skip:
         raw['throughput'] = run_throughput(sizes, encodings, cfg, log_dir, log_dir if args.profile else None,
                                            baseline_dir, raw['rounds'], attempts=args.attempts,
-                                           remap_relay=args.remap_relay)
+                                           remap_relay=args.remap_relay,
+                                           executors=[e for e in args.executors.split(',') if e],
+                                           no_subscriber=args.no_subscriber,
+                                           relay_executors=[e for e in args.relay_executors.split(',') if e])
     if 'compare' not in skip:
         comparisons = []
         for size in sizes:
@@ -776,7 +928,7 @@ def render(json_path: Path, out: Path):
     """The markdown report of a run's raw results (also: --render JSON)."""
     raw = json.loads(Path(json_path).read_text())
     for entry in raw.get('throughput', []):  # JSON turned the percentile keys into strings
-        for system in ('relay', 'remap_relay', 'node', 'baseline'):
+        for system in entry.get('rounds', {}):
             if system in entry:
                 lat = entry[system]['p30']['latency_ms']
                 entry[system]['p30']['latency_ms'] = {int(k) if k.isdigit() else k: v for k, v in lat.items()}
@@ -796,6 +948,7 @@ def render(json_path: Path, out: Path):
                    '`benchmarks/relay_node.py --mode raw` (same QoS and process layout, republishes the '
                    'serialised frame unchanged). Three processes share 2 cores, so the publisher and '
                    'subscriber take CPU from the system under test; ratios are from one run.', '']
+        report += cost_lines(results)
         report += speedup_lines(results)
         report += stream_floor_lines(results)
         report += fault_lines(results)

@@ -2,7 +2,8 @@
 """Pass-through relay: image_raw -> image_rect, unchanged: the floor a rectifying node cannot beat.
 
 Same process layout and QoS as the zeroshot_calib node with a best-effort camera (KEEP_LAST 5,
-best effort, volatile, on both topics), same executor (rclpy.spin, single-threaded).
+best effort, volatile, on both topics), same executor as the node (by default rclpy's
+SingleThreadedExecutor; see --executor).
 
     --mode raw   (default) takes the serialised message and republishes those bytes: no
                  deserialisation at all, the cheapest a Python node can forward a frame.
@@ -17,6 +18,9 @@ best effort, volatile, on both topics), same executor (rclpy.spin, single-thread
                  depth 10, camera_info transient local). No checks, lookups, parameters or
                  diagnostics: the floor of a node like this one in a stream, where the remap
                  starts cold between frames (a back-to-back remap never does).
+
+``--executor single|events``: rclpy's SingleThreadedExecutor (default, as ``rclpy.spin``) or its
+EventsExecutor, spun as the node spins it (zeroshot_calib_ros/ros/executors.py).
 
 Run with the benchmark environment (benchmarks/bench_common.py ros_env), e.g.
 
@@ -91,17 +95,22 @@ def main(argv=None):
     p.add_argument('--out-topic', default='image_rect')
     p.add_argument('--width', type=int, default=1920, help='frame width of --mode remap')
     p.add_argument('--height', type=int, default=1080, help='frame height of --mode remap')
+    p.add_argument('--executor', choices=['single', 'events'], default='single',
+                   help='rclpy executor: SingleThreadedExecutor (default) or EventsExecutor')
     args, ros_args = p.parse_known_args(argv)
     from bench_common import frames_in_heap, node_calibration
     frames_in_heap()  # first, as the node's main() does
     calibration = rectifier = None
     if args.mode == 'remap':  # the node's calibration and maps, before any frame comes (as the node has them)
         calibration, rectifier = node_calibration(args.width, args.height).for_size(args.width, args.height)
+    from zeroshot_calib_ros.ros.executors import create_executor, spin
     rclpy.init(args=[sys.argv[0], *ros_args])
+    executor, name, _ = create_executor(args.executor)
     node = Relay(args.mode, args.in_topic, args.out_topic, rectifier, calibration)
-    print('RELAY READY', flush=True)
+    executor.add_node(node)
+    print(f'RELAY READY ({name})', flush=True)
     try:
-        rclpy.spin(node)
+        spin(executor, name)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

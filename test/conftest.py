@@ -11,7 +11,7 @@ import os
 NEEDS_ROS = ['test_node.py', 'test_node_contracts.py', 'test_node_files.py', 'test_bringup.py',
              'test_reliability.py', 'test_packaging.py', 'test_node_observable.py',
              'test_node_fuzz.py', 'test_readme_claims_ros.py', 'test_raw_path.py', 'test_node_refine.py', 'test_node_params.py',
-             'test_node_calibration_cycle.py']
+             'test_node_calibration_cycle.py', 'test_node_lazy.py']
 
 ROS_FREE_ONLY = os.environ.get('ZEROSHOT_ROS_FREE_ONLY') == '1'
 collect_ignore = NEEDS_ROS if ROS_FREE_ONLY else []

@@ -114,14 +114,15 @@ def camera_info(width, height, f_scale=0.5, d=(0.02, -0.01, 0.003, -0.0005), r=N
 
 
 def test_set_camera_info_success_means_in_force(peer, start_node, tmp_path):
-    """rectify on, a 4000x3000 calibration (92 MiB of maps, built in ~1 s): "adopted and saved"
-    comes when it is in force (every CameraInfo after the reply has it, the file holds it);
-    were its maps still building after SET_CAMERA_INFO_WAIT_SECONDS (a busy machine), the reply
-    says so, and the file appears only with the calibration in force."""
+    """rectify on, image_rect subscribed, a 4000x3000 calibration (92 MiB of maps, built in ~1 s):
+    "adopted and saved" comes when it is in force (every CameraInfo after the reply has it, the
+    file holds it); were its maps still building after SET_CAMERA_INFO_WAIT_SECONDS (a busy
+    machine), the reply says so, and the file appears only with the calibration in force."""
     path = tmp_path / 'cam.yaml'
-    start_node('--ros-args', *SPEC_720, '-p', 'rectify:=true', '-p', f'camera_info_url:=file://{path}')
+    node = start_node('--ros-args', *SPEC_720, '-p', 'rectify:=true', '-p', f'camera_info_url:=file://{path}')
     infos = peer.collect(CameraInfo, 'camera_info', RELIABLE)
-    peer.spin_until(lambda: infos, what='camera_info')
+    peer.collect(Image, 'image_rect', RELIABLE)
+    peer.spin_until(lambda: infos and 'image_rect has a subscriber' in node.log, what='camera_info, image_rect matched')
     response = peer.call(SetCameraInfo, 'set_camera_info', SetCameraInfo.Request(camera_info=camera_info(4000, 3000)))
     assert response.success, response.status_message
     if 'not in force yet' in response.status_message:
@@ -224,13 +225,15 @@ def test_set_camera_info_refuses_an_absurd_calibration_naming_the_field(peer, st
 
 def test_a_calibration_whose_maps_take_long_is_answered_as_not_in_force_yet_and_saved_when_it_is(
         peer, start_node, tmp_path):
-    """16000x12000 (1.4 GiB of maps, within the default budget of this machine; ~10 s to build):
-    the reply says it is accepted and its maps are being built, no file yet; the calibration in
-    force stays until they are built; then it is in force and saved."""
+    """16000x12000 (1.4 GiB of maps, within the default budget of this machine; ~10 s to build),
+    image_rect subscribed (without a subscriber no maps are built: test_node_lazy.py): the reply
+    says it is accepted and its maps are being built, no file yet; the calibration in force stays
+    until they are built; then it is in force and saved."""
     path = tmp_path / 'cam.yaml'
     node = start_node('--ros-args', *SPEC_720, '-p', 'rectify:=true', '-p', f'camera_info_url:=file://{path}')
     infos = peer.collect(CameraInfo, 'camera_info', RELIABLE)
-    peer.spin_until(lambda: infos, what='camera_info')
+    peer.collect(Image, 'image_rect', RELIABLE)
+    peer.spin_until(lambda: infos and 'image_rect has a subscriber' in node.log, what='camera_info, image_rect matched')
     response = peer.call(SetCameraInfo, 'set_camera_info',
                          SetCameraInfo.Request(camera_info=camera_info(16000, 12000)), timeout=30)
     assert response.success, response.status_message

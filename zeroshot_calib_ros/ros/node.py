@@ -5,12 +5,26 @@
 Only ROS plumbing lives here (parameters, topics, the service, QoS); every computation is in
 ``zeroshot_calib_ros.core``.
 
-Threads: every ROS callback runs on the executor thread (rclpy.spin), and only there is the
-calibration in force (``_active``) replaced. Rectification maps of a new calibration (start-up,
-parameter change, set_camera_info) are built on a builder thread while frames keep the
-calibration in force; when they are ready, a guard condition swaps the new calibration in on the
-executor thread. So a parameter change never stalls the stream, and every frame's CameraInfo and
-image_rect come from one calibration.
+Threads: every ROS callback runs on the executor thread, and only there is the calibration in
+force (``_active``) replaced. Rectification maps of a new calibration (parameter change,
+set_camera_info) are built on a builder thread while frames keep the calibration in force; when
+they are ready, a task on the executor (``executor.create_task``) swaps the new calibration in
+on the executor thread. So a parameter change never stalls the stream, and every frame's
+CameraInfo and image_rect come from one calibration. The executor is rclpy's
+SingleThreadedExecutor, or its EventsExecutor with ZEROSHOT_CALIB_EXECUTOR=events (executors.py).
+
+Lazy rectification: with rectify on, a frame is remapped only while image_rect has a subscriber
+(the publisher's matched-subscription count, read per frame: a few microseconds, and exactly the
+readers DDS would deliver that frame to), and no maps are built before one subscribes, as
+image_proc does nothing until its output is subscribed. CameraInfo goes out with every frame
+either way. When a subscriber appears (its match event, or the count read by the next frame), the
+maps of the configured size and of the last frame's size are built at once, on every core; a
+frame that comes while they are being built waits for them up to FIRST_FRAME_WAIT_SECONDS, so
+the first frame after a subscriber appears is rectified (with the EventsExecutor there is no
+match event: the first frame starts the maps and waits). A calibration adopted while nobody
+subscribes is in force at once (no maps to wait for). The start-up log and /diagnostics
+(``rectify``, ``image_rect_subscribers``, ``frames_rectified``, ``frames_not_rectified_no_subscriber``)
+say which state the node is in.
 
 Frames (issue 14) are taken as the serialized bytes DDS delivered (``raw=True``): the Image header
 is parsed in place (``core/ros_data/cdr_image.py``), the pixels are viewed without a copy, remapped
@@ -44,6 +58,7 @@ import rclpy  # noqa: E402
 import rclpy.executors  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
 from rcl_interfaces.msg import SetParametersResult  # noqa: E402
+from rclpy.event_handler import PublisherEventCallbacks  # noqa: E402
 from rclpy.exceptions import ParameterException  # noqa: E402
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy  # noqa: E402
 from rclpy.node import Node  # noqa: E402
@@ -69,6 +84,7 @@ from ..core.ros_data.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,
                                              usage_text)
 from ..core.zeroshot.solver import NoConvergence  # noqa: E402
 from ..core.zeroshot.spec import SpecError, value_text  # noqa: E402
+from .executors import create_executor, executor_choice, executor_text, spin  # noqa: E402
 from .messages import calibration_from_camera_info, fill_camera_info, serialized_camera_info  # noqa: E402
 from .parameter_service import AtomicParameterService, descriptor  # noqa: E402
 
@@ -86,6 +102,12 @@ answered as accepted, with its maps being built, and saved when it is in force."
 FRAME_PATH_ENV = 'ZEROSHOT_CALIB_FRAME_PATH'
 """'serialized' (the default) or 'message': how frames are taken and published (see the module)."""
 _INFO_TEMPLATES_CACHED = 16
+FIRST_FRAME_WAIT_SECONDS = 0.25
+"""How long a frame waits for the maps being built because image_rect just got a subscriber (so
+that the first frame after a subscriber appears is rectified): 1080p maps took 0.19-0.58 s on
+every core of a 2-core machine busy with other jobs, 640x360 maps 0.06-0.09 s. Bounded so that
+the frames queued behind it (image_raw keeps 10) are not lost; the frames that come while maps
+take longer are counted as maps_pending and not rectified."""
 REFINE_PARAMETERS = ('refine', 'refine_interval')
 REFINABLE_SOURCES = ('spec', 'refined')
 """Sources of a calibration that ``refine`` refines (never a file's or set_camera_info's)."""
@@ -115,9 +137,17 @@ def publish_serialized(publisher, buffer):
 class ZeroShotCalibNode(Node):
     """Publishes the zero-shot CameraInfo; rectifies image_raw into image_rect when asked."""
 
-    def __init__(self, heap_text: str = 'allocator unchanged (the node was constructed outside main())', **kwargs):
+    def __init__(self, heap_text: str = 'allocator unchanged (the node was constructed outside main())',
+                 executor_text: str = 'whichever spins the node (it was constructed outside main())',
+                 matched_events: bool = True, **kwargs):
         super().__init__(NODE_NAME, start_parameter_services=False, **kwargs)
         self._heap_text = heap_text
+        self._executor_text = executor_text
+        # image_rect's matched-subscription events: not with the EventsExecutor, which has crashed
+        # destroying a publisher with event callbacks while subscribers came and went (rclpy
+        # issue 1644); the QoS matching destroys image_rect's publisher once a camera appears.
+        # Without them, the first frame after a subscriber appears starts its maps and waits.
+        self._matched_events = matched_events
         # Start-up (issue 14): what the first CameraInfo needs, then that CameraInfo, then the
         # map build, then the rest (services, the image endpoints, timers, the log: rclpy's
         # first log lines cost tens of ms each, so information lines wait until the CameraInfo
@@ -137,6 +167,11 @@ class ZeroShotCalibNode(Node):
         self._reliability = ReliabilityPolicy.RELIABLE
         self._image_reliability = ReliabilityPolicy.BEST_EFFORT
         self._rect_pub = None
+        self._rect_subscribers = 0  # image_rect's matched subscriptions, as last read
+        self._rect_ever_subscribed = False
+        self._ahead_jobs = []  # MapJobs of the maps built when image_rect got a subscriber
+        self._last_size = None  # (width, height) of the last frame that got a CameraInfo
+        self._failed_maps = {}  # (id(active), width, height) -> (active, why) of maps that failed to build
         self._out_buffer = None
         self._rect_msg = Image()
         self._info_cache = (None, None)  # (calibration, its CameraInfo), reused frame after frame
@@ -176,14 +211,11 @@ class ZeroShotCalibNode(Node):
         # One at start-up whatever the camera does: transient local then holds a calibration for
         # late joiners even if a camera exists but has not sent a frame yet.
         self._publish_own_info()
-        # The maps next (a low-priority thread): frames that come before they are built are
-        # not rectified, so they get the rest of the start-up as a head start.
+        # The map builder (a low-priority thread); no maps yet: they are built when image_rect
+        # gets a subscriber (lazy rectification, see the module's text).
         self._built = []
         self._built_lock = threading.Lock()
-        self._built_guard = self.create_guard_condition(self._on_calibration_built)
         self._builder = MapBuilder(self._on_builder_done)
-        if self._active.rectify_enabled:
-            self._builder.submit(MapJob(self._active, map_threads=None))
 
         self._parameter_service = AtomicParameterService(self)
         self._create_image_endpoints()
@@ -299,12 +331,22 @@ class ZeroShotCalibNode(Node):
             f'  service    {self.resolve_service_name(self._set_camera_info_srv.srv_name)} '
             '(sensor_msgs/srv/SetCameraInfo, for cameracalibrator)',
             f'  publishes  {self._diagnostics_pub.topic_name} (diagnostic_msgs/DiagnosticArray, 1 Hz)',
-            f'  rectify    {"on" if self._active.rectify_enabled else "off"}'
+            f'  rectify    {self._rectify_text()}'
             f' (maps at most max_map_memory_mb = {self._map_budget}: {self._map_budget_why})',
             f'  calibration file: {self._file_state}',
             f'  frame path {self._frame_path_text()}',
+            f'  executor   {self._executor_text}',
             f'  memory     {self._heap_text}',
         ])
+
+    def _rectify_text(self) -> str:
+        """'off', 'on, lazy: no subscriber yet', 'on, lazy: no subscriber', 'on: 1 subscriber'."""
+        if not self._active.rectify_enabled:
+            return 'off'
+        count = self._rect_subscribers
+        if count:
+            return f'on: {count} subscriber{"s" if count > 1 else ""}'
+        return 'on, lazy: no subscriber' + ('' if self._rect_ever_subscribed else ' yet')
 
     def _frame_path_text(self) -> str:
         if self._serialized:
@@ -340,10 +382,71 @@ class ZeroShotCalibNode(Node):
     def _sync_rect_publisher(self):
         """image_rect is advertised only while rectify is on (it would collide with image_proc's)."""
         if self._active.rectify_enabled and self._rect_pub is None:
-            self._rect_pub = self.create_publisher(Image, 'image_rect', self._image_qos(self._reliability))
+            # matched: a subscriber's arrival starts its maps before the next frame comes
+            events = PublisherEventCallbacks(matched=self._on_rect_matched) if self._matched_events else None
+            self._rect_pub = self.create_publisher(Image, 'image_rect', self._image_qos(self._reliability),
+                                                   event_callbacks=events)
         elif not self._active.rectify_enabled and self._rect_pub is not None:
             self.destroy_publisher(self._rect_pub)
             self._rect_pub = None
+        self._rect_has_subscriber()
+
+    # --- lazy rectification: remap only while image_rect has a subscriber --------------------
+    def _on_rect_matched(self, _status):
+        self._rect_has_subscriber()
+
+    def _rect_has_subscriber(self) -> bool:
+        """Whether image_rect has a subscriber now (per frame: a few microseconds); when the first
+        one appears, the maps are built at once (``_maps_ahead``), and the change is logged."""
+        pub = self._rect_pub
+        count = pub.get_subscription_count() if pub is not None else 0
+        before = self._rect_subscribers
+        if count == before:
+            return count > 0
+        self._rect_subscribers = count
+        if count and not before:
+            self._rect_ever_subscribed = True
+            sizes = self._maps_ahead(self._active) if self._newest is self._active else []
+            self._log('info', 'image_rect has a subscriber: rectifying frames' +
+                      (f' (maps of {", ".join(f"{w}x{h}" for w, h in sizes)} being built)' if sizes else ''))
+        elif not count and self._active.rectify_enabled:
+            self._log('info', 'image_rect has no subscriber: frames are not rectified until one subscribes '
+                      '(CameraInfo still goes out with every frame)')
+        return count > 0
+
+    def _maps_ahead(self, active: ActiveCalibration) -> list:
+        """Build the maps of the configured size and of the last frame's size for ``active`` now,
+        on every core (image_rect has just got a subscriber); returns the sizes being built."""
+        if not active.rectify_enabled or binning_or_roi_reason(active.calibration):
+            return []
+        self._ahead_jobs = [job for job in self._ahead_jobs if not job.finished.is_set()]
+        self._failed_maps.clear()  # tried again for the new subscriber
+        sizes = [active.size]
+        if self._last_size is not None and self._last_size != active.size:
+            width, height = self._last_size
+            try:
+                active.calibration_for(width, height)
+                check_map_budget(width, height, self._map_budget_bytes - map_bytes(*active.size))
+                sizes.append(self._last_size)
+            except (FrameSkipped, MapBudgetExceeded):
+                pass  # its frames say why when they come
+        building = []
+        for width, height in sizes:
+            if active.rectifier_for(width, height) is None:
+                self._ahead_jobs.append(self._builder.request_size(active, width, height, map_threads=None))
+                building.append((width, height))
+        return building
+
+    def _ahead_rectifier(self, active: ActiveCalibration, width: int, height: int):
+        """The rectifier of a frame whose maps are being built because image_rect has just got a
+        subscriber: waited for, up to FIRST_FRAME_WAIT_SECONDS, by the first such frame only
+        (None if not ready by then: that frame and the next ones are counted as maps_pending)."""
+        for job in self._ahead_jobs:
+            if job.active is active and job.size == (width, height):
+                self._ahead_jobs.remove(job)
+                job.finished.wait(FIRST_FRAME_WAIT_SECONDS)
+                return active.rectifier_for(width, height)
+        return None
 
     @staticmethod
     def _image_qos(reliability, depth=5):
@@ -459,6 +562,7 @@ class ZeroShotCalibNode(Node):
             else:
                 calibration = active.calibration_for(width, height)
             self._uncalibrated = None
+            self._last_size = (width, height)
             return calibration
         except FrameSkipped as exc:
             if exc.reason == 'aspect':  # said for each size (throttled), and an ERROR in /diagnostics
@@ -476,8 +580,11 @@ class ZeroShotCalibNode(Node):
         """The built rectifier of a frame, or None (not rectifying, or skipped and counted)."""
         if not active.rectify_enabled or self._rect_pub is None:
             return None
+        if not self._rect_has_subscriber():
+            self._stats['frames_not_rectified_no_subscriber'] += 1
+            return None
         try:
-            rectifier = active.rectifier_for(width, height)
+            rectifier = active.rectifier_for(width, height) or self._ahead_rectifier(active, width, height)
             if rectifier is None:
                 self._request_maps(active, calibration, width, height)
             return rectifier
@@ -493,13 +600,19 @@ class ZeroShotCalibNode(Node):
         reason = binning_or_roi_reason(calibration)
         if reason:
             raise FrameSkipped('binning_roi', reason)
+        failed = self._failed_maps.get((id(active), width, height))
+        if failed is not None and failed[0] is active:
+            raise FrameSkipped('maps_failed', f'rectification maps of {width}x{height} could not be built '
+                               f'({failed[1]}); frames of that size are not rectified')
         if (width, height) != active.size:
             try:
                 check_map_budget(width, height, self._map_budget_bytes - map_bytes(*active.size),
                                  what='rectification maps of this frame size (beside the configured size)')
             except MapBudgetExceeded as exc:
                 raise FrameSkipped('maps_budget', str(exc)) from None
-            self._builder.request_size(active, width, height)
+        # (the configured size's maps too, when they are missing: being built since image_rect got
+        # a subscriber, the request returns that build)
+        self._builder.request_size(active, width, height)
         raise FrameSkipped('maps_pending', f'rectification maps of {width}x{height} are being built; '
                            'frames of that size are not rectified until they are ready')
 
@@ -574,7 +687,10 @@ class ZeroShotCalibNode(Node):
 
     # --- housekeeping: QoS matching, memory and diagnostics ---------------------------------
     def _on_housekeeping(self):
+        if self._built:  # maps finished before the node was added to an executor
+            self._on_calibration_built()
         self._match_image_reliability()
+        self._rect_has_subscriber()
         for size in self._active.release_unused(OTHER_SIZE_IDLE_SECONDS):
             self._builder.forget_size(self._active, *size)
             self.get_logger().info(f'rectification maps of {size[0]}x{size[1]} released (no such frame '
@@ -606,6 +722,9 @@ class ZeroShotCalibNode(Node):
         pending = self._builder.pending
         values = {'source': self._active.source, 'generation': self._active.generation,
                   'frame_path': 'serialized' if self._serialized else f'message ({self._frame_path_reason})',
+                  'executor': self._executor_text,
+                  'rectify': self._rectify_text(), 'image_rect_subscribers': self._rect_subscribers,
+                  'frames_rectified': 0, 'frames_not_rectified_no_subscriber': 0,
                   'fx': self._active.calibration.K[0, 0], 'qos_reliability': self._reliability.name,
                   'pending_generation': pending.active.generation if pending else '',
                   'maps_build_ms': f'{self._maps_build_ms:.1f}',
@@ -706,7 +825,9 @@ class ZeroShotCalibNode(Node):
         self._newest = active
         self._follow_with_refiner(active)
         job = MapJob(active, log, values=values if values is not None else self._values())
-        if not active.rectify_enabled:  # nothing to build: in force at once
+        if not active.rectify_enabled or not self._rect_has_subscriber():
+            # nothing to build (rectify off, or nobody subscribes to image_rect: its maps are
+            # built when someone does): in force at once
             self._swap_in(job)
             job.finished.set()
             return job
@@ -717,11 +838,15 @@ class ZeroShotCalibNode(Node):
         return job
 
     def _on_builder_done(self, job: MapJob):
-        """Builder thread: hand the job to the executor thread."""
+        """Builder thread: hand the job to the executor thread (a task: both executors take one
+        from any thread; before the node is added to one, housekeeping takes the job)."""
         with self._built_lock:
             self._built.append(job)
+        executor = self.executor
+        if executor is None:
+            return
         try:
-            self._built_guard.trigger()
+            executor.create_task(self._on_calibration_built)
         except Exception:  # shutting down
             pass
 
@@ -732,9 +857,12 @@ class ZeroShotCalibNode(Node):
             if job.size is not None:
                 if job.error is not None:
                     self._stats['size_maps_failed'] += 1
+                    self._failed_maps[(id(job.active), *job.size)] = (job.active, str(job.error))
                     self.get_logger().warning(f'rectification maps of {job.size[0]}x{job.size[1]} not built: '
                                               f'{job.error}; frames of that size stay unrectified')
                 else:
+                    if job.size == job.active.size:
+                        self._maps_build_ms = job.seconds * 1e3
                     self.get_logger().info(f'rectification maps of {job.size[0]}x{job.size[1]} built in '
                                            f'{job.seconds * 1e3:.0f} ms')
                 continue
@@ -779,6 +907,7 @@ class ZeroShotCalibNode(Node):
         if job.active.generation <= self._active.generation:
             return  # superseded while it was built
         self._active = job.active
+        self._failed_maps.clear()
         if job.values is not None:
             self._values_in_force = job.values
         self._stats['calibrations_adopted'] += 1
@@ -1047,9 +1176,13 @@ def _main(args):
     except _rclpy.RCLError as exc:  # arguments rcl cannot parse (it has logged its own line before)
         print(f'{NODE_NAME}: error: {str(exc).splitlines()[0]}', file=sys.stderr)
         return 2
+    choice, asked = executor_choice()
     node = None
     try:
-        node = ZeroShotCalibNode(heap_text=heap_text)
+        executor, name, why = create_executor(choice)
+        why = why or asked
+        node = ZeroShotCalibNode(heap_text=heap_text, executor_text=executor_text(name, why),
+                                 matched_events=name != 'events')
     except (SpecError, CalibrationFileError, ParameterException) as exc:
         print(f'{NODE_NAME}: error: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
@@ -1058,8 +1191,11 @@ def _main(args):
         if not rclpy.ok():  # Ctrl-C while starting: the context was shut down under the node
             return 0
         raise
+    if why and name == 'single':  # a value that names no executor, or no EventsExecutor in this rclpy
+        node.get_logger().warning(f'executor: {why}')
     try:
-        rclpy.spin(node)
+        executor.add_node(node)
+        spin(executor, name)
     except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
         pass
     finally:

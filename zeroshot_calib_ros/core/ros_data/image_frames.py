@@ -37,7 +37,8 @@ ENCODINGS: Dict[str, Tuple[np.dtype, int]] = {
 class FrameSkipped(ValueError):
     """A frame that cannot be processed; ``reason`` is the counter it is reported under:
     'encoding', 'aspect', 'malformed', 'maps_pending' (maps of a new size not built yet),
-    'maps_budget' (maps of that size would not fit max_map_memory_mb), 'binning_roi'."""
+    'maps_budget' (maps of that size would not fit max_map_memory_mb), 'maps_failed' (building
+    them failed), 'binning_roi'."""
 
     def __init__(self, reason: str, message: str):
         super().__init__(message)

@@ -52,7 +52,7 @@ class MapBuilder:
         self._cond = threading.Condition()
         self._pending: Optional[MapJob] = None
         self._sizes = collections.deque()
-        self._queued_sizes = set()
+        self._queued_sizes = {}  # (id(active), width, height) -> its MapJob, until built
         self._running: Optional[MapJob] = None
         self._stopped = False
         self._thread = threading.Thread(target=self._run, name='map_builder', daemon=True)
@@ -73,16 +73,20 @@ class MapBuilder:
             replaced.superseded = True
             replaced.finished.set()
 
-    def request_size(self, active: ActiveCalibration, width: int, height: int):
-        """Build the maps of ``width`` x ``height`` for ``active`` (a call while that size is queued
-        or being built is a no-op; once it is done, a new call builds it again)."""
+    def request_size(self, active: ActiveCalibration, width: int, height: int,
+                     map_threads: Optional[int] = REBUILD_MAP_THREADS) -> MapJob:
+        """Build the maps of ``width`` x ``height`` for ``active`` with ``map_threads`` threads
+        (None: one per CPU); returns the job (a call while that size is queued or being built
+        returns the job already queued; once it is done, a new call builds it again)."""
         key = (id(active), width, height)
         with self._cond:
-            if key in self._queued_sizes:
-                return
-            self._queued_sizes.add(key)
-            self._sizes.append(MapJob(active, size=(width, height)))
+            queued = self._queued_sizes.get(key)
+            if queued is not None:
+                return queued
+            job = self._queued_sizes[key] = MapJob(active, size=(width, height), map_threads=map_threads)
+            self._sizes.append(job)
             self._cond.notify()
+        return job
 
     def stop(self, timeout: float = 5.0):
         with self._cond:
@@ -120,11 +124,11 @@ class MapBuilder:
                 if job.size is not None:  # built or failed: the size may be asked for again
                     # (its maps can be evicted from the calibration's cache later, and a frame
                     # of that size then asks again; one that is still cached is not asked for)
-                    self._queued_sizes.discard((id(job.active), *job.size))
+                    self._queued_sizes.pop((id(job.active), *job.size), None)
             self._done(job)
             job.finished.set()
 
     def forget_size(self, active: ActiveCalibration, width: int, height: int):
         """Allow ``width`` x ``height`` to be requested again (its maps were released)."""
         with self._cond:
-            self._queued_sizes.discard((id(active), width, height))
+            self._queued_sizes.pop((id(active), width, height), None)
