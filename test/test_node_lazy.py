@@ -8,6 +8,7 @@ EventsExecutor with ZEROSHOT_CALIB_EXECUTOR=events) publish, run the timers, tak
 change (maps built on the builder thread and handed back to the executor) and set_camera_info,
 and end on Ctrl-C with status 0.
 """
+import functools
 import signal
 import time
 
@@ -21,6 +22,7 @@ from sensor_msgs.srv import SetCameraInfo
 
 from ros_peer import (LATCHED, diagnostics_value, domain_id, image_msg, parameter_msg, peer,  # noqa: F401
                       qos, start_node)
+import test_node_observable as observable
 from zeroshot_calib_ros.core import CameraSpec, Rectifier, solve_zero_shot
 
 WIDTH, HEIGHT = 640, 360
@@ -53,15 +55,9 @@ def rect_pixels(msg):
     return np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.step)[:, :msg.width]
 
 
-def wait_for_diagnostics(peer, diagnostics, expected, what, timeout=10.0):
-    """Until the last /diagnostics message has every key = value of ``expected`` (as strings)."""
-    def matches():
-        return bool(diagnostics) and all(diagnostics_value(diagnostics[-1:], k) == str(v) for k, v in expected.items())
-    try:
-        peer.spin_until(matches, timeout=timeout, what=what)
-    except AssertionError:
-        got = {k: diagnostics_value(diagnostics[-1:], k) for k in expected}
-        raise AssertionError(f'{what}: /diagnostics says {got}, expected {expected}') from None
+# test_node_observable's wait (its callable values unused here), with this file's longer timeout: the
+# first maps after a subscriber appears take up to 0.6 s on a loaded 2-core machine
+wait_for_diagnostics = functools.partial(observable.wait_for_diagnostics, timeout=10.0)
 
 
 def test_no_remap_and_no_maps_without_a_subscriber_and_the_first_frame_after_one_is_rectified(peer, start_node):
