@@ -128,7 +128,8 @@ class Peer:
 
 @pytest.fixture
 def domain_id():
-    return next(_domains) % 100 + 1
+    # ZEROSHOT_TEST_DOMAIN_OFFSET (0 or 100): two test runs on one machine in domains apart
+    return next(_domains) % 100 + 1 + int(os.environ.get('ZEROSHOT_TEST_DOMAIN_OFFSET', '0'))
 
 
 @pytest.fixture
