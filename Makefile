@@ -114,10 +114,10 @@ echo: $(BSTAMP)
 	@cd $(TOP) && $(ROS_ENV) $(VPY) -m $(PKG).ros.echo $(TOPIC) $(ECHO_ARGS)
 
 # `make mutation MUTATION_ARGS='--only ID[,ID] --out FILE'`: the curated deliberate bugs of
-# benchmarks/mutants.py, each applied alone to a copy of the repository and its tests run there
-# (benchmarks/mutation.py; slow: not part of `make test`).
+# test/mutation/mutants.py, each applied alone to a copy of the repository and its tests run there
+# (test/mutation/run.py; slow: not part of `make test`).
 mutation: $(BSTAMP)
-	cd $(TOP) && $(ROS_ENV) $(VPY) benchmarks/mutation.py $(MUTATION_ARGS)
+	cd $(TOP) && $(ROS_ENV) $(VPY) test/mutation/run.py $(MUTATION_ARGS)
 
 clean:
 	rm -rf $(TOP)/build $(TOP)/install $(TOP)/log $(TOP)/.pytest_cache \

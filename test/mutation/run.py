@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """Mutation check: do the tests catch what users rely on?
 
-    .venv/bin/python benchmarks/mutation.py [--only ID[,ID]] [--list] [--timeout S] [--out FILE]
+    .venv/bin/python test/mutation/run.py [--only ID[,ID]] [--list] [--timeout S] [--out FILE]
     make mutation MUTATION_ARGS='--only fov-scale-ignored-in-P'
 
-Applies the curated deliberate bugs of ``benchmarks/mutants.py`` one at a time to a copy of the
+Applies the curated deliberate bugs of ``test/mutation/mutants.py`` one at a time to a copy of the
 repository and runs each one's tests there: a mutant is *killed* when they fail, *SURVIVED* when
 they pass (a documented behaviour no test checks), *ERROR* when it cannot be applied (its
 snippet no longer occurs exactly once: the list is stale) or its tests select nothing.
@@ -36,7 +36,7 @@ import tempfile
 import time
 from pathlib import Path
 
-TOP = Path(__file__).resolve().parents[1]
+TOP = Path(__file__).resolve().parents[2]
 PKG = 'zeroshot_calib_ros'
 EXCLUDED_TOP = {'.venv', '.venv-jazzy-libs', 'build', 'log', '.git'}
 """Top-level entries of the repository that are not copied."""
@@ -68,7 +68,7 @@ class Abort(Exception):
 
 # --- the mutant list ---------------------------------------------------------------------------
 
-def load_mutants(path: Path = TOP / 'benchmarks' / 'mutants.py') -> list:
+def load_mutants(path: Path = Path(__file__).resolve().parent / 'mutants.py') -> list:
     spec = importlib.util.spec_from_file_location('zeroshot_mutants', path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -359,7 +359,7 @@ def table(records: list) -> str:
     killed, total = score(records)
     lines += ['', f'Score: {killed}/{total} ({100.0 * killed / total if total else 0.0:.1f} %) killed']
     for result, what in (('SURVIVED', 'Survived (a documented behaviour no test checks)'),
-                         ('ERROR', 'Errors (stale mutants or tests: fix benchmarks/mutants.py)')):
+                         ('ERROR', 'Errors (stale mutants or tests: fix test/mutation/mutants.py)')):
         ids = [r['id'] for r in records if r['result'] == result]
         if ids:
             lines += ['', f'{what}: {", ".join(ids)}']
@@ -477,9 +477,9 @@ def run(args, mutants: list) -> int:
         header = [
             '# Mutation check',
             '',
-            f'`.venv/bin/python benchmarks/mutation.py` (`make mutation`) on {state}, '
+            f'`.venv/bin/python test/mutation/run.py` (`make mutation`) on {state}, '
             f'{datetime.date.today().isoformat()}: {len(records)} curated deliberate bugs '
-            '(`benchmarks/mutants.py`), each applied alone to a copy of the repository and its tests '
+            '(`test/mutation/mutants.py`), each applied alone to a copy of the repository and its tests '
             f'run; {killed} of {total} killed. Baseline (no mutant): {baseline_summary}. '
             f'Total {elapsed / 60:.1f} min' + (' (interrupted: partial)' if interrupted else '') + '.',
             '',

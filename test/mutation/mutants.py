@@ -1,4 +1,4 @@
-"""The curated deliberate bugs of ``benchmarks/mutation.py``: one per documented behaviour.
+"""The curated deliberate bugs of ``test/mutation/run.py``: one per documented behaviour.
 
 Each mutant is a small, realistic bug (an off-by-one, swapped arguments, an ignored parameter,
 a wrong constant, an inverted condition) in one product file, with the documented behaviour it
