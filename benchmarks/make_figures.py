@@ -50,7 +50,7 @@ DEFAULT_OUT = ROOT / 'docs' / 'images'
 MAX_BYTES = 300_000
 FRAME = 'left-0003.png'
 REFINE_FRAMES = ('left-0000.png', 'left-0006.png', 'left-0012.png', 'left-0018.png')
-# test/test_refine_cli.py's camera and its FOVs rounded to a degree
+# test/cli/test_cli_refine.py's camera and its FOVs rounded to a degree
 RENDERED = KannalaBrandtCamera(210.0, 210.0, 327.0, 176.0, 640, 360, np.array([0.02, -0.01, 0.003, -0.0005]))
 RENDERED_SPEC = ['--hfov', '172', '--vfov', '97', '--dfov', '198']
 

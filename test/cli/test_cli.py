@@ -84,7 +84,7 @@ def test_rectify_an_image_file(tmp_path):
 ])
 def test_errors_exit_2_with_one_line_and_no_traceback(args, message):
     run = subprocess.run([sys.executable, '-m', 'zeroshot_calib_ros.cli', 'solve', *args],
-                         capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
+                         capture_output=True, text=True, cwd=Path(__file__).resolve().parents[2])
     assert run.returncode == 2
     assert run.stdout == ''
     assert len(run.stderr.strip().splitlines()) == 1 and message in run.stderr

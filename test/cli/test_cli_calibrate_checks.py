@@ -18,7 +18,7 @@ import pytest
 from cli_run import run_main
 from zeroshot_calib_ros.core import CameraCalibration
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DATA = Path(os.environ.get('ZEROSHOT_SHARED_DATA', REPO.parent / 'shared' / 'data')) / 'ros_fisheye_800x503'
 needs_data = pytest.mark.skipif(not (DATA / 'left-0000.png').is_file(),
                                 reason=f'the shared real data set is missing: {DATA}')

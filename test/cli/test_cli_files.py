@@ -20,7 +20,7 @@ import pytest
 from zeroshot_calib_ros.cli import main
 MAX_IMAGE_PIXELS = 50_000_000  # the stated budget (--help, errors)
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 ENTRY = 'import sys; from zeroshot_calib_ros.cli import main; sys.exit(main(sys.argv[1:]))'
 MEMORY_LIMIT = 1536 << 20
 """Address space allowed to a CLI process in these tests (imports need a few hundred MB)."""

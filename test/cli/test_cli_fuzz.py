@@ -37,7 +37,7 @@ from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
 
 CASES = Counter()
 STATUSES = Counter()
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope='module', autouse=True)

@@ -4,7 +4,7 @@ coefficient explained where it is printed and in the file, `rectify`'s summary l
 warnings of a calibration file read, and optional tab completion.
 
 (`refine` / `calibrate` whose result is not adopted, exit status 3 and the file comment:
-test_refine_cli.py and test_calibrate_checks.py.)"""
+test_cli_refine.py and test_cli_calibrate_checks.py.)"""
 import io
 import json
 import os
@@ -25,7 +25,7 @@ from test_calibration import TRUE, spec_of, synthetic_corners
 from zeroshot_calib_ros.core import CameraCalibration, CameraSpec, solve_zero_shot
 from zeroshot_calib_ros.core.ros_data.calibration_file import NONZERO_EPSILON
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PURE_FISHEYE = ['--width', '1920', '--height', '1080', '--circle-diameter', '1000', '--circle-fov', '200']
 """A spec whose camera follows r = f theta exactly: its ROS D is [0, 0, 0, 1e-20] (the stand-in)."""
 

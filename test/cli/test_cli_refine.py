@@ -79,7 +79,7 @@ def test_refine_recovers_the_true_camera_and_writes_it(views, capsys, tmp_path):
     assert dense_rms(camera, TRUE) < 1.0 < dense_rms(zero_shot, TRUE)
     assert 0 < record['uncertainty_px'] < 5
     picture = cv2.imread(str(debug))
-    panels = sheet_panels(picture, 360 / 640)  # the contact sheet: a panel per view (test_report.py)
+    panels = sheet_panels(picture, 360 / 640)  # the contact sheet: a panel per view (test_calibration_report.py)
     assert len(panels) == 3
     # the views are grey: green pixels on the first panel are the used curves drawn over the first
     # image (at least one of its straight lines, ~100 px each), which a user checks by eye

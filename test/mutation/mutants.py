@@ -40,8 +40,8 @@ MUTANTS = [
         old='        f = (focal[n_a] + focal[n_b]) / 2.0',
         new='        f = focal[n_a]',
         behaviour='No barrel root (Hero9(L), Table 2): w* = 0 and f = the mean of the two perspective focals',
-        tests=['test/test_solver.py::test_no_barrel_root_gives_zero_omega_and_mean_focal',
-               'test/test_solver.py::test_zero_shot_matches_table2'],
+        tests=['test/core/zeroshot/test_solver.py::test_no_barrel_root_gives_zero_omega_and_mean_focal',
+               'test/core/zeroshot/test_solver.py::test_zero_shot_matches_table2'],
     ),
     dict(
         id='solver-perspective-full-angle',
@@ -50,7 +50,7 @@ MUTANTS = [
         new='        f = spec.half_extents()[name] / math.tan(math.radians(deg))',
         behaviour="one FOV read as the paper reads it (lens_prior=False): a pinhole, f = (W/2) / tan(hfov/2) "
                   '(Table 2 C905, f* 1042.3)',
-        tests=['test/test_solver.py::test_hfov_alone_is_perspective'],
+        tests=['test/core/zeroshot/test_solver.py::test_hfov_alone_is_perspective'],
     ),
     dict(
         id='solver-principal-point-off-by-half',
@@ -58,7 +58,7 @@ MUTANTS = [
         old='    camera = ZeroShotCamera(f, spec.width / 2.0, spec.height / 2.0, spec.width, spec.height,',
         new='    camera = ZeroShotCamera(f, (spec.width - 1) / 2.0, (spec.height - 1) / 2.0, spec.width, spec.height,',
         behaviour='Principal point at (W/2, H/2), as the paper: cx = 960 at 1920 px',
-        tests=['test/test_solver.py::test_portrait_equals_transposed_landscape'],
+        tests=['test/core/zeroshot/test_solver.py::test_portrait_equals_transposed_landscape'],
     ),
     dict(
         id='solver-adaptive-selection-farthest',
@@ -66,7 +66,7 @@ MUTANTS = [
         old='min(residuals, key=lambda n: abs(residuals[n]))',
         new='max(residuals, key=lambda n: abs(residuals[n]))',
         behaviour='With hfov, vfov and dfov: the projection whose predicted dfov is closest is chosen (adaptive selection)',
-        tests=['test/test_solver.py::test_dfov_selects_the_true_projection'],
+        tests=['test/core/zeroshot/test_solver.py::test_dfov_selects_the_true_projection'],
     ),
     dict(
         id='solver-newton-undamped',
@@ -74,7 +74,7 @@ MUTANTS = [
         old='def _newton_root(projection, r_a, t_a, r_b, t_b, omega0=1e-4, gamma=0.1, tol=1e-12,',
         new='def _newton_root(projection, r_a, t_a, r_b, t_b, omega0=1e-4, gamma=1.0, tol=1e-12,',
         behaviour="method='newton' is the paper's damped Newton (w0 = 1e-4, gamma = 0.1, ~230 iterations)",
-        tests=['test/test_solver.py::test_paper_newton_agrees_with_bracketed_root'],
+        tests=['test/core/zeroshot/test_solver.py::test_paper_newton_agrees_with_bracketed_root'],
     ),
     dict(
         id='projection-equisolid-inverse-is-stereographic',
@@ -82,8 +82,8 @@ MUTANTS = [
         old='        return 2.0 * np.arcsin(np.asarray(rho, dtype=float) / 2.0)',
         new='        return 2.0 * np.arctan(np.asarray(rho, dtype=float) / 2.0)',
         behaviour='The four fisheye laws of the paper (eqs. 13-16): equisolid r = 2 f sin(theta/2) and its inverse',
-        tests=['test/test_solver.py::test_dfov_selects_the_true_projection',
-               'test/test_solver.py::test_any_pair_of_fovs_recovers_a_known_camera'],
+        tests=['test/core/zeroshot/test_solver.py::test_dfov_selects_the_true_projection',
+               'test/core/zeroshot/test_solver.py::test_any_pair_of_fovs_recovers_a_known_camera'],
     ),
     # --- camera models ------------------------------------------------------------------------
     dict(
@@ -92,8 +92,8 @@ MUTANTS = [
         old='        psi = np.arctan2(a * np.sin(theta), np.cos(theta))',
         new='        psi = np.arctan2(np.sin(theta), a * np.cos(theta))',
         behaviour="ZeroShotCamera is the paper's exact model r_d = G_w(f tan theta); distort / undistort are exact inverses",
-        tests=['test/test_camera_models.py::test_round_trip_over_the_image',
-               'test/test_camera_models.py::test_predicted_fovs_reproduce_the_spec'],
+        tests=['test/core/lens/test_models.py::test_round_trip_over_the_image',
+               'test/core/lens/test_models.py::test_predicted_fovs_reproduce_the_spec'],
     ),
     dict(
         id='kb4-k3-k4-swapped',
@@ -101,7 +101,7 @@ MUTANTS = [
         old='        return theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))',
         new='        return theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k4 + t2 * k3))))',
         behaviour='KannalaBrandtCamera is ROS equidistant / OpenCV fisheye k1..k4',
-        tests=['test/test_camera_models.py::test_kannala_brandt_matches_opencv_both_ways'],
+        tests=['test/core/lens/test_models.py::test_kannala_brandt_matches_opencv_both_ways'],
     ),
     dict(
         id='plumb-bob-p1-p2-swapped',
@@ -109,7 +109,7 @@ MUTANTS = [
         old='        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)',
         new='        xd = x * radial + 2 * p2 * x * y + p1 * (r2 + 2 * x * x)',
         behaviour="PlumbBobCamera is ROS plumb_bob (k1, k2, p1, p2, k3), OpenCV's radial-tangential model",
-        tests=['test/test_camera_models.py::test_plumb_bob_matches_opencv'],
+        tests=['test/core/lens/test_models.py::test_plumb_bob_matches_opencv'],
     ),
     dict(
         id='scaled-camera-omega-not-scaled',
@@ -117,7 +117,7 @@ MUTANTS = [
         old='                              self.omega / s, self.projection)',
         new='                              self.omega * s, self.projection)',
         behaviour='Frames of another size with the same aspect ratio get scaled intrinsics (the same lens)',
-        tests=['test/test_camera_models.py::test_scaled_camera_keeps_the_field_of_view'],
+        tests=['test/core/lens/test_models.py::test_scaled_camera_keeps_the_field_of_view'],
     ),
     dict(
         id='fovs-folded-at-180',
@@ -125,8 +125,8 @@ MUTANTS = [
         old='            ang = np.degrees(np.where(halves > np.pi, halves, plain))',
         new='            ang = np.degrees(plain)',
         behaviour='FOVs are the sum of the half-angles either side of the principal point (180.81, not folded to 179.19)',
-        tests=['test/test_fields_of_view.py',
-               'test/test_cli.py::test_evaluate_spec_from_keeps_fovs_over_180_degrees'],
+        tests=['test/core/lens/test_models_fields_of_view.py',
+               'test/cli/test_cli.py::test_evaluate_spec_from_keeps_fovs_over_180_degrees'],
     ),
     # --- ROS distortion fits (KB4 / plumb_bob) ------------------------------------------------
     dict(
@@ -135,7 +135,7 @@ MUTANTS = [
         old='    A = np.stack([theta ** 3, theta ** 5, theta ** 7, theta ** 9], axis=1)',
         new='    A = np.stack([theta ** 3, theta ** 5, theta ** 7, theta ** 8], axis=1)',
         behaviour="OpenCV's fisheye model with our K, D departs from the exact model by < 0.01 px (cv2.fisheye.projectPoints)",
-        tests=['test/test_camera_models.py::test_opencv_fisheye_with_our_K_D_reproduces_exact_model'],
+        tests=['test/core/lens/test_models.py::test_opencv_fisheye_with_our_K_D_reproduces_exact_model'],
     ),
     dict(
         id='kb4-fit-misses-the-corners',
@@ -143,7 +143,7 @@ MUTANTS = [
         old='    return np.linspace(0.0, camera.max_field_angle(), samples)',
         new='    return np.linspace(0.0, 0.9 * camera.max_field_angle(), samples)',
         behaviour='equidistant coefficients are a minimax fit over every off-axis angle in the image (fit error = the largest anywhere)',
-        tests=['test/test_camera_models.py', 'test/test_solver.py::test_zero_shot_matches_table2'],
+        tests=['test/core/lens/test_models.py', 'test/core/zeroshot/test_solver.py::test_zero_shot_matches_table2'],
     ),
     dict(
         id='plumb-bob-fit-k3-in-p1',
@@ -151,7 +151,7 @@ MUTANTS = [
         old='    D = np.array([k[0], k[1], 0.0, 0.0, k[2]])',
         new='    D = np.array([k[0], k[1], k[2], 0.0, 0.0])',
         behaviour='--distortion-model plumb_bob: D = (k1, k2, 0, 0, k3) fitted to the exact model',
-        tests=['test/test_camera_models.py::test_plumb_bob_fit_is_accurate_for_narrow_and_reports_its_failure_on_wide'],
+        tests=['test/core/lens/test_models.py::test_plumb_bob_fit_is_accurate_for_narrow_and_reports_its_failure_on_wide'],
     ),
     dict(
         id='fit-warning-threshold',
@@ -159,7 +159,7 @@ MUTANTS = [
         old='FIT_WARNING_PX = 0.5\n',
         new='FIT_WARNING_PX = 10.0\n',
         behaviour='A ROS model off by more than 0.5 px anywhere is a warning (solve: stderr and JSON warning; node: WARN)',
-        tests=['test/test_cli.py', '-k', 'fit_warning'],
+        tests=['test/cli/test_cli.py', '-k', 'fit_warning'],
     ),
     # --- rectification maps and P (balance, fov_scale) ----------------------------------------
     dict(
@@ -168,7 +168,7 @@ MUTANTS = [
         old='        P = np.hstack([new_camera_matrix(solution.camera, balance, fov_scale), np.zeros((3, 1))])',
         new='        P = np.hstack([new_camera_matrix(solution.camera, balance), np.zeros((3, 1))])',
         behaviour='fov_scale chooses the rectified camera P (divides its focal length), as in cv2.fisheye',
-        tests=['test/test_cli.py::test_solve_json_P_is_opencvs_new_camera_matrix'],
+        tests=['test/cli/test_cli.py::test_solve_json_P_is_opencvs_new_camera_matrix'],
     ),
     dict(
         id='fov-scale-ignored-on-a-file-calibration',
@@ -176,9 +176,9 @@ MUTANTS = [
         old='        P = np.hstack([new_camera_matrix(self.camera, balance, fov_scale), np.zeros((3, 1))])',
         new='        P = np.hstack([new_camera_matrix(self.camera, balance), np.zeros((3, 1))])',
         behaviour='balance / fov_scale changes re-choose P of a file or set_camera_info calibration too (its K, D stay)',
-        tests=['test/test_rectify.py::test_every_P_means_what_opencv_means',
-               'test/test_node_observable.py::test_diagnostics_source_and_generation_follow_each_adopted_change',
-               'test/test_reliability.py::test_frames_stay_paired_with_their_calibration_through_changes_restarts_and_late_joiners'],
+        tests=['test/core/ros_data/test_rectify.py::test_every_P_means_what_opencv_means',
+               'test/ros/test_node_observable.py::test_diagnostics_source_and_generation_follow_each_adopted_change',
+               'test/product/test_reliability.py::test_frames_stay_paired_with_their_calibration_through_changes_restarts_and_late_joiners'],
     ),
     dict(
         id='balance-inverted',
@@ -186,7 +186,7 @@ MUTANTS = [
         old='    f = balance * min(focals) + (1.0 - balance) * max(focals)',
         new='    f = balance * max(focals) + (1.0 - balance) * min(focals)',
         behaviour='balance 0 = only valid pixels, 1 = all edges kept (cv2.fisheye.estimateNewCameraMatrixForUndistortRectify)',
-        tests=['test/test_rectify.py::test_every_P_means_what_opencv_means'],
+        tests=['test/core/ros_data/test_rectify.py::test_every_P_means_what_opencv_means'],
     ),
     dict(
         id='P-edge-midpoints-off-by-one',
@@ -194,7 +194,7 @@ MUTANTS = [
         old='    edges = np.array([[w // 2, 0], [w, h // 2], [w // 2, h], [0, h // 2]], dtype=float)',
         new='    edges = np.array([[w // 2, 0], [w - 1, h // 2], [w // 2, h - 1], [0, h // 2]], dtype=float)',
         behaviour='balance and fov_scale mean exactly what cv2.fisheye.estimateNewCameraMatrixForUndistortRectify makes them mean',
-        tests=['test/test_rectify.py::test_every_P_means_what_opencv_means'],
+        tests=['test/core/ros_data/test_rectify.py::test_every_P_means_what_opencv_means'],
     ),
     dict(
         id='maps-u-v-swapped',
@@ -202,7 +202,7 @@ MUTANTS = [
         old='            rays[..., i] = M[i, 0] * u + (M[i, 1] * v + M[i, 2])',
         new='            rays[..., i] = M[i, 1] * u + (M[i, 0] * v + M[i, 2])',
         behaviour='Rectification maps agree with cv2.fisheye.initUndistortRectifyMap on our K, D to 1/64 px',
-        tests=['test/test_rectify.py::test_maps_agree_with_opencv_fisheye_maps_to_fixed_point_precision'],
+        tests=['test/core/ros_data/test_rectify.py::test_maps_agree_with_opencv_fisheye_maps_to_fixed_point_precision'],
     ),
     dict(
         id='rectifier-ignores-the-given-P',
@@ -210,9 +210,9 @@ MUTANTS = [
         old='        self.P = new_camera_matrix(camera, balance, fov_scale) if P is None else np.asarray(P, float)[:3, :3]',
         new='        self.P = new_camera_matrix(camera, balance, fov_scale)',
         behaviour="Rectified images are in the CameraInfo's P (rectify --calibration uses the file's P; image_rect as image_proc)",
-        tests=['test/test_camera_info_model.py::test_rectify_image_against_our_rectifier_for_the_hero9_calibration',
-               'test/test_cli.py::test_rectify_with_a_calibration_file_scales_to_the_image',
-               'test/test_reliability.py::test_frames_stay_paired_with_their_calibration_through_changes_restarts_and_late_joiners'],
+        tests=['test/core/ros_data/test_camera_info_model.py::test_rectify_image_against_our_rectifier_for_the_hero9_calibration',
+               'test/cli/test_cli.py::test_rectify_with_a_calibration_file_scales_to_the_image',
+               'test/product/test_reliability.py::test_frames_stay_paired_with_their_calibration_through_changes_restarts_and_late_joiners'],
     ),
     dict(
         id='float-border-zero-not-nan',
@@ -220,7 +220,7 @@ MUTANTS = [
         old="        border = float('nan') if image.dtype.kind == 'f' else 0",
         new='        border = 0',
         behaviour='image_rect of float images (32FC1): NaN where no pixel was seen, as image_proc',
-        tests=['test/test_node_contracts.py::test_encodings_are_rectified_as_image_proc_does[32FC1-float32-1]'],
+        tests=['test/ros/test_node_contracts.py::test_encodings_are_rectified_as_image_proc_does[32FC1-float32-1]'],
     ),
     # --- image encodings and frame checks -----------------------------------------------------
     dict(
@@ -229,10 +229,10 @@ MUTANTS = [
         old="    'rgb16': (np.dtype(np.uint16), 3), 'bgr16': (np.dtype(np.uint16), 3),",
         new="    'rgb16': (np.dtype(np.uint8), 3), 'bgr16': (np.dtype(np.uint16), 3),",
         behaviour='image_rect: same encoding as the input for mono8 ... rgb16, bgr16 ... 32FC1',
-        tests=['test/test_readme_claims.py::test_readme_encodings_are_the_ones_rectified',
-               'test/test_rectify.py::test_every_encoding_is_rectified_channel_by_channel_as_opencv_remaps_it',
-               'test/test_node.py::test_every_supported_encoding_is_rectified',
-               'test/test_node_contracts.py::test_encodings_are_rectified_as_image_proc_does'],
+        tests=['test/product/test_readme_claims.py::test_readme_encodings_are_the_ones_rectified',
+               'test/core/ros_data/test_rectify.py::test_every_encoding_is_rectified_channel_by_channel_as_opencv_remaps_it',
+               'test/ros/test_node.py::test_every_supported_encoding_is_rectified',
+               'test/ros/test_node_contracts.py::test_encodings_are_rectified_as_image_proc_does'],
     ),
     dict(
         id='big-endian-ignored',
@@ -240,7 +240,7 @@ MUTANTS = [
         old="    view = np.ndarray((height, width, channels), dtype=dtype.newbyteorder('>' if is_bigendian else '<'),",
         new="    view = np.ndarray((height, width, channels), dtype=dtype.newbyteorder('<'),",
         behaviour='A big-endian 16/32-bit image is converted, not misread',
-        tests=['test/test_reliability.py::test_big_endian_16_bit_is_converted_not_skipped'],
+        tests=['test/product/test_reliability.py::test_big_endian_16_bit_is_converted_not_skipped'],
     ),
     dict(
         id='frame-check-accepts-extra-bytes',
@@ -248,9 +248,9 @@ MUTANTS = [
         old='    if nbytes != step * height:',
         new='    if nbytes < step * height:',
         behaviour='Every frame is checked whatever rectify is (size, step and data length agree) before its CameraInfo goes out',
-        tests=['test/test_node_contracts.py::test_frames_are_checked_whatever_rectify_is',
-               'test/test_node.py::test_bad_frames_are_skipped_counted_and_survived',
-               'test/test_reliability.py::test_more_malformed_frames_are_skipped_counted_and_survived'],
+        tests=['test/ros/test_node_contracts.py::test_frames_are_checked_whatever_rectify_is',
+               'test/ros/test_node.py::test_bad_frames_are_skipped_counted_and_survived',
+               'test/product/test_reliability.py::test_more_malformed_frames_are_skipped_counted_and_survived'],
     ),
     dict(
         id='map-budget-4-bytes-a-pixel',
@@ -258,9 +258,9 @@ MUTANTS = [
         old='MAP_BYTES_PER_PIXEL = 8\n',
         new='MAP_BYTES_PER_PIXEL = 4\n',
         behaviour='max_map_memory_mb: memory budget of the rectification maps (at most 8 bytes a pixel); maps exceeding it are refused',
-        tests=['test/test_readme_claims.py::test_maps_take_at_most_8_bytes_a_pixel_and_the_default_budget_is_an_eighth_of_memory',
-               'test/test_node_contracts.py::test_a_frame_size_whose_maps_exceed_the_budget_is_counted_and_not_rectified',
-               'test/test_node_contracts.py::test_too_large_maps_are_refused_before_success_and_the_calibration_kept'],
+        tests=['test/product/test_readme_claims.py::test_maps_take_at_most_8_bytes_a_pixel_and_the_default_budget_is_an_eighth_of_memory',
+               'test/ros/test_node_contracts.py::test_a_frame_size_whose_maps_exceed_the_budget_is_counted_and_not_rectified',
+               'test/ros/test_node_contracts.py::test_too_large_maps_are_refused_before_success_and_the_calibration_kept'],
     ),
     # --- CameraInfo contents ------------------------------------------------------------------
     dict(
@@ -269,7 +269,7 @@ MUTANTS = [
         old='        p=calibration.P.ravel().tolist(),',
         new='        p=np.hstack([calibration.K, np.zeros((3, 1))]).ravel().tolist(),',
         behaviour='camera_info: P of the rectified camera (from the spec, a file or set_camera_info)',
-        tests=['test/test_node.py::test_set_camera_info_is_persisted_and_reloaded'],
+        tests=['test/ros/test_node.py::test_set_camera_info_is_persisted_and_reloaded'],
     ),
     dict(
         id='camera-info-binning-1-not-0',
@@ -277,7 +277,7 @@ MUTANTS = [
         old='        binning_x=int(calibration.binning_x), binning_y=int(calibration.binning_y),',
         new='        binning_x=max(1, int(calibration.binning_x)), binning_y=max(1, int(calibration.binning_y)),',
         behaviour='camera_info: binning and roi as given (0 / full image from the spec)',
-        tests=['test/test_node_observable.py::test_a_spec_calibration_is_the_full_image_unbinned'],
+        tests=['test/ros/test_node_observable.py::test_a_spec_calibration_is_the_full_image_unbinned'],
     ),
     dict(
         id='camera-info-roi-width-height-swapped',
@@ -285,7 +285,7 @@ MUTANTS = [
         old='        roi=(int(roi.x_offset), int(roi.y_offset), int(roi.height), int(roi.width), bool(roi.do_rectify)))',
         new='        roi=(int(roi.x_offset), int(roi.y_offset), int(roi.width), int(roi.height), bool(roi.do_rectify)))',
         behaviour='camera_info: binning and roi as given by a file or set_camera_info',
-        tests=['test/test_node_files.py::test_binning_and_roi_are_kept_and_not_rectified_wrongly'],
+        tests=['test/ros/test_node_files.py::test_binning_and_roi_are_kept_and_not_rectified_wrongly'],
     ),
     dict(
         id='all-zero-D-not-nudged',
@@ -293,8 +293,8 @@ MUTANTS = [
         old="            D[3 if distortion_model == 'equidistant' else 4] = NONZERO_EPSILON",
         new="            D[3 if distortion_model == 'equidistant' else 4] = 0.0",
         behaviour='All-zero D: when the fit of a distorting lens is exactly zero the node publishes 1e-20 as the last coefficient',
-        tests=['test/test_calibration_file.py::test_all_zero_fit_of_a_distorting_lens_keeps_downstream_rectifying',
-               'test/test_node_observable.py::test_an_exactly_zero_equidistant_fit_publishes_1e_20'],
+        tests=['test/core/ros_data/test_calibration_file.py::test_all_zero_fit_of_a_distorting_lens_keeps_downstream_rectifying',
+               'test/ros/test_node_observable.py::test_an_exactly_zero_equidistant_fit_publishes_1e_20'],
     ),
     # --- calibration files: YAML / INI, camera_info_url ---------------------------------------
     dict(
@@ -303,8 +303,8 @@ MUTANTS = [
         old="    return os.path.expanduser(os.environ.get('ROS_HOME') or os.path.join('~', '.ros'))",
         new="    return os.path.expanduser(os.path.join('~', '.ros'))",
         behaviour='camera_info_url: ${ROS_HOME} = $ROS_HOME or ~/.ros',
-        tests=['test/test_calibration_file.py::test_camera_info_urls',
-               'test/test_calibration_file.py::test_ros_home_defaults_to_home_dot_ros'],
+        tests=['test/core/ros_data/test_calibration_file.py::test_camera_info_urls',
+               'test/core/ros_data/test_calibration_file.py::test_ros_home_defaults_to_home_dot_ros'],
     ),
     dict(
         id='url-name-not-the-camera-name',
@@ -312,8 +312,8 @@ MUTANTS = [
         old='            out.append(camera_name)',
         new="            out.append('camera')",
         behaviour='camera_info_url: ${NAME} = camera_name',
-        tests=['test/test_calibration_file.py::test_camera_info_urls',
-               'test/test_node_files.py::test_url_variables_and_a_file_of_another_camera'],
+        tests=['test/core/ros_data/test_calibration_file.py::test_camera_info_urls',
+               'test/ros/test_node_files.py::test_url_variables_and_a_file_of_another_camera'],
     ),
     dict(
         id='url-file-scheme-drops-the-root',
@@ -321,7 +321,7 @@ MUTANTS = [
         old="        path = resolved[len('file://'):]",
         new="        path = resolved[len('file:///'):]",
         behaviour='camera_info_url: file:///absolute/path (camera_info_manager rules)',
-        tests=['test/test_calibration_file.py::test_camera_info_urls'],
+        tests=['test/core/ros_data/test_calibration_file.py::test_camera_info_urls'],
     ),
     dict(
         id='yaml-height-read-from-width',
@@ -329,7 +329,7 @@ MUTANTS = [
         old="    height = _integer('image_height', required('image_height'), 1, MAX_IMAGE_SIDE, ' (pixels)')",
         new="    height = _integer('image_height', required('image_width'), 1, MAX_IMAGE_SIDE, ' (pixels)')",
         behaviour="Calibration files in camera_calibration_parsers' YAML load (a driver's camera_info_url)",
-        tests=['test/test_calibration_file.py::test_yaml_written_by_camera_calibration_parsers_loads'],
+        tests=['test/core/ros_data/test_calibration_file.py::test_yaml_written_by_camera_calibration_parsers_loads'],
     ),
     dict(
         id='yaml-writer-width-height-swapped',
@@ -337,7 +337,7 @@ MUTANTS = [
         old="""        lines = [f"image_width: {d['image_width']}", f"image_height: {d['image_height']}",""",
         new="""        lines = [f"image_width: {d['image_height']}", f"image_height: {d['image_width']}",""",
         behaviour="--yaml / set_camera_info write camera_calibration_parsers' YAML layout, and it round-trips",
-        tests=['test/test_calibration_file.py::test_yaml_has_camera_calibration_parsers_layout_and_round_trips'],
+        tests=['test/core/ros_data/test_calibration_file.py::test_yaml_has_camera_calibration_parsers_layout_and_round_trips'],
     ),
     dict(
         id='ini-model-by-count-inverted',
@@ -345,7 +345,7 @@ MUTANTS = [
         old="    model = 'plumb_bob' if D.size == 5 else 'rational_polynomial'  # parse_ini.cpp: by the count",
         new="    model = 'rational_polynomial' if D.size == 5 else 'plumb_bob'  # parse_ini.cpp: by the count",
         behaviour=".ini calibration files (camera_calibration_parsers' INI): 5 coefficients are plumb_bob, 8 rational_polynomial",
-        tests=['test/test_calibration_file.py', '-k', 'ini'],
+        tests=['test/core/ros_data/test_calibration_file.py', '-k', 'ini'],
     ),
     dict(
         id='missing-distortion-model-is-equidistant',
@@ -353,7 +353,7 @@ MUTANTS = [
         old="            model = 'plumb_bob'\n            warnings.append(",
         new="            model = 'equidistant'\n            warnings.append(",
         behaviour='A file without distortion_model loads as plumb_bob with a warning',
-        tests=['test/test_calibration_file.py::test_missing_distortion_model_is_plumb_bob_with_a_warning'],
+        tests=['test/core/ros_data/test_calibration_file.py::test_missing_distortion_model_is_plumb_bob_with_a_warning'],
     ),
     dict(
         id='read-only-file-replaced-by-root',
@@ -361,7 +361,7 @@ MUTANTS = [
         old='        if not mode & 0o222:',
         new='        if not mode & 0o222 and st.st_uid != os.geteuid():',
         behaviour='Saving onto a read-only calibration file is refused and the file kept (as camera_info_manager)',
-        tests=['test/test_calibration_file_save.py::test_read_only_file_is_refused_and_kept'],
+        tests=['test/core/ros_data/test_calibration_file_save.py::test_read_only_file_is_refused_and_kept'],
     ),
     dict(
         id='scaled-calibration-keeps-P',
@@ -369,7 +369,7 @@ MUTANTS = [
         old='                                 S @ self.P, self.camera_name, self.binning_x, self.binning_y, roi)',
         new='                                 self.P, self.camera_name, self.binning_x, self.binning_y, roi)',
         behaviour='A calibration at another size of the same aspect ratio is scaled (K and P)',
-        tests=['test/test_calibration_file.py::test_scaled_calibration_scales_intrinsics_only'],
+        tests=['test/core/ros_data/test_calibration_file.py::test_scaled_calibration_scales_intrinsics_only'],
     ),
     # --- command line -------------------------------------------------------------------------
     dict(
@@ -378,7 +378,7 @@ MUTANTS = [
         old='    fov_scale = 1.0 if args.fov_scale is None else args.fov_scale',
         new='    fov_scale = 1.0',
         behaviour='zeroshot-calib rectify ... [--balance B] [--fov-scale S] chooses the rectified camera',
-        tests=['test/test_cli.py::test_rectify_fov_scale_and_balance_give_opencvs_rectified_image'],
+        tests=['test/cli/test_cli.py::test_rectify_fov_scale_and_balance_give_opencvs_rectified_image'],
     ),
     dict(
         id='cli-batch-positional-columns-swapped',
@@ -386,7 +386,7 @@ MUTANTS = [
         old='    columns = list(BATCH_POSITIONAL)',
         new="    columns = ['name', 'width', 'height', 'hfov', 'dfov', 'vfov']",
         behaviour='--batch without a header row: rows are name,width,height,hfov,vfov,dfov',
-        tests=['test/test_cli.py', '-k', 'batch'],
+        tests=['test/cli/test_cli.py', '-k', 'batch'],
     ),
     dict(
         id='cli-batch-exit-0-on-failed-rows',
@@ -394,7 +394,7 @@ MUTANTS = [
         old='    return 1 if failures else 0',
         new='    return 0',
         behaviour='--batch: a bad row prints {name, row, line, error}, the rest go on, exit status 1 if any row failed',
-        tests=['test/test_cli.py::test_batch_reports_bad_rows_and_goes_on'],
+        tests=['test/cli/test_cli.py::test_batch_reports_bad_rows_and_goes_on'],
     ),
     dict(
         id='cli-batch-camera-name-keeps-dashes',
@@ -402,7 +402,7 @@ MUTANTS = [
         old="    name = re.sub(r'[^A-Za-z0-9_]', '_', row_name)[:200]",
         new="    name = re.sub(r'[^A-Za-z0-9_-]', '_', row_name)[:200]",
         behaviour='--batch: camera_name is the row name with characters other than letters, digits and _ made _',
-        tests=['test/test_cli.py', '-k', 'batch'],
+        tests=['test/cli/test_cli.py', '-k', 'batch'],
     ),
     dict(
         id='cli-json-hfov-vfov-swapped',
@@ -410,7 +410,7 @@ MUTANTS = [
         old="        'hfov': fovs['hfov'], 'vfov': fovs['vfov'], 'dfov': fovs['dfov'],",
         new="        'hfov': fovs['vfov'], 'vfov': fovs['hfov'], 'dfov': fovs['dfov'],",
         behaviour='solve --json: width, height, model, omega, f, cx, cy, K, distortion_model, D, fit_error_px, hfov, vfov, dfov, P, warning',
-        tests=['test/test_cli.py::test_solve_json'],
+        tests=['test/cli/test_cli.py::test_solve_json'],
     ),
     dict(
         id='cli-json-warning-dropped',
@@ -418,7 +418,7 @@ MUTANTS = [
         old="    warnings += _assumption_warnings(summary)\n    summary['warning'] = warnings\n",
         new="    warnings += _assumption_warnings(summary)\n    summary['warning'] = []\n",
         behaviour='solve --json: warning is the list of one-line warnings ([] when none)',
-        tests=['test/test_cli.py', 'test/test_readme.py', '-k', 'warning or json'],
+        tests=['test/cli/test_cli.py', 'test/product/test_readme.py', '-k', 'warning or json'],
     ),
     dict(
         id='cli-distortion-model-ignored',
@@ -426,7 +426,7 @@ MUTANTS = [
         old='        solution, args.distortion_model, args.balance, args.fov_scale, camera_name)',
         new="        solution, 'equidistant', args.balance, args.fov_scale, camera_name)",
         behaviour='solve --distortion-model equidistant|plumb_bob',
-        tests=['test/test_cli.py', 'test/test_readme.py', '-k', 'plumb_bob or distortion or warning'],
+        tests=['test/cli/test_cli.py', 'test/product/test_readme.py', '-k', 'plumb_bob or distortion or warning'],
     ),
     dict(
         id='cli-method-newton-ignored',
@@ -434,8 +434,8 @@ MUTANTS = [
         old="    solution = solve_zero_shot(spec, args.model, getattr(args, 'method', 'bracketed'), args.fov_tolerance)",
         new='    solution = solve_zero_shot(spec, args.model, fov_tolerance=args.fov_tolerance)',
         behaviour="solve --method newton: the paper's damped Newton iteration",
-        tests=['test/test_cli.py::test_solve_method_newton_is_the_papers_iteration',
-               'test/test_cli.py::test_solve_method_newton_agrees_with_the_default_and_the_paper'],
+        tests=['test/cli/test_cli.py::test_solve_method_newton_is_the_papers_iteration',
+               'test/cli/test_cli.py::test_solve_method_newton_agrees_with_the_default_and_the_paper'],
     ),
     dict(
         id='cli-circle-options-ignored',
@@ -443,7 +443,7 @@ MUTANTS = [
         old="SOLVE_SPEC_FIELDS = ('width', 'height', 'hfov', 'vfov', 'dfov', 'circle_diameter', 'circle_fov')",
         new="SOLVE_SPEC_FIELDS = ('width', 'height', 'hfov', 'vfov', 'dfov')",
         behaviour='solve --circle-diameter 1000 --circle-fov 200: circular fisheye',
-        tests=['test/test_cli.py', 'test/test_readme.py', '-k', 'circle'],
+        tests=['test/cli/test_cli.py', 'test/product/test_readme.py', '-k', 'circle'],
     ),
     # --- checkerboard calibration and evaluation (Tables 3 and 4) -----------------------------
     dict(
@@ -452,7 +452,7 @@ MUTANTS = [
         old="        summary['eps_all_px'] = reprojection_error(result.camera, corners).rms",
         new="        summary['eps_all_px'] = reprojection_error(result.initial_camera, corners).rms",
         behaviour='calibrate --single: eps_all_px is eq. 20 of the calibrated camera on all given images',
-        tests=['test/test_calibration.py', 'test/test_evaluation.py', '-k', 'cli_calibrate or single_shot or eps_all'],
+        tests=['test/core/checkerboard/test_calibration.py', 'test/core/checkerboard/test_evaluation.py', '-k', 'cli_calibrate or single_shot or eps_all'],
     ),
     dict(
         id='calibrate-spec-not-the-start',
@@ -460,7 +460,7 @@ MUTANTS = [
         old="    result = calibrate(corners, 'fc+zs' if spec is not None else 'fc', views, spec, principal_point)",
         new="    result = calibrate(corners, 'fc', views, spec, principal_point)",
         behaviour='calibrate: started from the zero-shot solution when a spec is given (FC_eq.d.+ZS)',
-        tests=['test/test_calibration.py::test_cli_calibrate_single_shot_with_spec'],
+        tests=['test/core/checkerboard/test_calibration.py::test_cli_calibrate_single_shot_with_spec'],
     ),
     dict(
         id='table4-eps-gen-eps-fit-swapped',
@@ -468,7 +468,7 @@ MUTANTS = [
         old="                    cells.append(f'{st.gen_mean:.2f} ({st.fit_mean:.2f})'",
         new="                    cells.append(f'{st.fit_mean:.2f} ({st.gen_mean:.2f})'",
         behaviour='evaluate: Table 4 layout prints eps_gen (eps_fit), eqs. 21-22',
-        tests=['test/test_evaluation.py', 'test/test_calibration.py', 'test/test_readme.py',
+        tests=['test/core/checkerboard/test_evaluation.py', 'test/core/checkerboard/test_calibration.py', 'test/product/test_readme.py',
                '-k', 'table4 or table or cli_evaluate or evaluate'],
     ),
     dict(
@@ -477,7 +477,7 @@ MUTANTS = [
         old='                own = err.per_image[list(views)]',
         new='                own = err.per_image',
         behaviour='eq. 22: eps_fit is the error on the image(s) a single-shot run was calibrated on',
-        tests=['test/test_evaluation.py', '-k', 'table4 or fit or single_shot'],
+        tests=['test/core/checkerboard/test_evaluation.py', '-k', 'table4 or fit or single_shot'],
     ),
     dict(
         id='eq20-mean-distance-not-rms',
@@ -485,7 +485,7 @@ MUTANTS = [
         old='    return ReprojectionError(float(np.sqrt(np.mean(sq))), per_image, poses, views)',
         new='    return ReprojectionError(float(np.mean(np.sqrt(sq))), per_image, poses, views)',
         behaviour="eq. 20: eps^2 = 1/(NM) sum ||p - p~||^2 (per-point distance, as OpenCV's RMS)",
-        tests=['test/test_evaluation.py::test_eq20_of_noisy_corners_is_the_noise_level'],
+        tests=['test/core/checkerboard/test_evaluation.py::test_eq20_of_noisy_corners_is_the_noise_level'],
     ),
     dict(
         id='pers-max-focal-not-mean',
@@ -493,7 +493,7 @@ MUTANTS = [
         old='    f = float(np.mean(focals))\n',
         new='    f = float(np.max(focals))\n',
         behaviour='Pers.: the pinhole with the mean of (W/2)/tan(hfov/2) and (H/2)/tan(vfov/2), centred',
-        tests=['test/test_calibration.py::test_perspective_camera_is_the_papers_mean_perspective_focal'],
+        tests=['test/core/checkerboard/test_calibration.py::test_perspective_camera_is_the_papers_mean_perspective_focal'],
     ),
     dict(
         id='default-start-shorter-side',
@@ -501,7 +501,7 @@ MUTANTS = [
         old='    f = max(width, height) / math.pi\n',
         new='    f = min(width, height) / math.pi\n',
         behaviour='Default start: the equidistant fisheye with 180 degrees across the longer image side (f = max(W, H) / pi)',
-        tests=['test/test_calibration.py::test_default_camera_is_an_equidistant_fisheye_with_180_degrees_across_the_longer_side'],
+        tests=['test/core/checkerboard/test_calibration.py::test_default_camera_is_an_equidistant_fisheye_with_180_degrees_across_the_longer_side'],
     ),
     dict(
         id='outlier-threshold-min-not-max',
@@ -509,9 +509,9 @@ MUTANTS = [
         old='        return d > max(OUTLIER_K_SIGMA * sigma, OUTLIER_MIN_PX), d',
         new='        return d > min(OUTLIER_K_SIGMA * sigma, OUTLIER_MIN_PX), d',
         behaviour='FC rejects corners whose error exceeds max(6 sigma, 3 px); clean corners reject nothing',
-        tests=['test/test_input_checks.py::test_clean_corners_reject_nothing',
-               'test/test_input_checks.py::test_one_corner_moved_is_rejected_and_listed_and_f_stays_within_half_a_percent',
-               'test/test_input_checks.py::test_shared_set_the_one_corner_fc_rejects_is_the_authors_calibrations_outlier'],
+        tests=['test/core/checkerboard/test_calibration_input_checks.py::test_clean_corners_reject_nothing',
+               'test/core/checkerboard/test_calibration_input_checks.py::test_one_corner_moved_is_rejected_and_listed_and_f_stays_within_half_a_percent',
+               'test/core/checkerboard/test_calibration_input_checks.py::test_shared_set_the_one_corner_fc_rejects_is_the_authors_calibrations_outlier'],
     ),
     dict(
         id='principal-point-outside-cy-unchecked',
@@ -519,7 +519,7 @@ MUTANTS = [
         old='    if -0.5 <= camera.cx <= W - 0.5 and -0.5 <= camera.cy <= H - 0.5:',
         new='    if -0.5 <= camera.cx <= W - 0.5:',
         behaviour='A calibration whose principal point is outside the image is a failure, never a result',
-        tests=['test/test_input_checks.py::test_a_principal_point_outside_the_image_is_an_error_not_a_result'],
+        tests=['test/core/checkerboard/test_calibration_input_checks.py::test_a_principal_point_outside_the_image_is_an_error_not_a_result'],
     ),
     # --- input checks (docs/calibration.md) ---------------------------------------------------
     dict(
@@ -528,7 +528,7 @@ MUTANTS = [
         old='        d = np.minimum(same, rev)',
         new='        d = same',
         behaviour='Duplicate views (within 0.5 px RMS, in the same or the reversed order) are reported with both names',
-        tests=['test/test_input_checks.py::test_duplicate_views_are_reported_with_both_names'],
+        tests=['test/core/checkerboard/test_calibration_input_checks.py::test_duplicate_views_are_reported_with_both_names'],
     ),
     dict(
         id='collinear-view-accepted',
@@ -536,7 +536,7 @@ MUTANTS = [
         old='    if spread[1] < COLLINEAR_RATIO * spread[0]:',
         new='    if spread[1] < COLLINEAR_RATIO * spread[1]:',
         behaviour='Degenerate views are refused with the image name: collinear corners',
-        tests=['test/test_input_checks.py::test_a_view_of_collinear_corners_is_rejected_by_name'],
+        tests=['test/core/checkerboard/test_calibration_input_checks.py::test_a_view_of_collinear_corners_is_rejected_by_name'],
     ),
     dict(
         id='transposed-board-not-named',
@@ -544,7 +544,7 @@ MUTANTS = [
         old='            if a * b != board.count or b < 2 or a == board.cols:',
         new='            if a * b != board.count or b < 2 or a == board.rows:',
         behaviour='A board declared transposed (9x15 for a 15x9) is refused naming the board the corners form',
-        tests=['test/test_input_checks.py::test_corners_of_a_15x9_board_declared_9x15_are_refused_naming_the_right_board'],
+        tests=['test/core/checkerboard/test_calibration_input_checks.py::test_corners_of_a_15x9_board_declared_9x15_are_refused_naming_the_right_board'],
     ),
     # --- the node -----------------------------------------------------------------------------
     dict(
@@ -554,8 +554,8 @@ MUTANTS = [
         new=("            cached = self._info_templates[key] = (calibration, serialized_camera_info(calibration, "
              "self.get_parameter('frame_id').value))"),
         behaviour="camera_info with images: one per frame with exactly the image's header (stamp and frame_id)",
-        tests=['test/test_node_observable.py::test_camera_info_with_images_carries_exactly_each_image_header',
-               'test/test_node.py::test_rectified_stream_keeps_stamps_and_straightens_lines'],
+        tests=['test/ros/test_node_observable.py::test_camera_info_with_images_carries_exactly_each_image_header',
+               'test/ros/test_node.py::test_rectified_stream_keeps_stamps_and_straightens_lines'],
     ),
     dict(
         id='node-camera-info-frame-id-not-the-images-message-path',
@@ -563,7 +563,7 @@ MUTANTS = [
         old='        info.header = msg.header\n',
         new='        info.header.stamp = msg.header.stamp\n',
         behaviour="camera_info with images, frames taken on the message path: exactly the image's header",
-        tests=['test/test_raw_path.py::test_serialized_path_is_in_use_and_publishes_the_message_paths_bytes'],
+        tests=['test/ros/test_node_raw_path.py::test_serialized_path_is_in_use_and_publishes_the_message_paths_bytes'],
     ),
     dict(
         id='node-diagnostics-rectified-counted-as-received',
@@ -573,7 +573,7 @@ MUTANTS = [
         new=("        publish_serialized(self._rect_pub, self._rect_serialized.buffer)\n"
              "        self._stats['frames_received'] += 1"),
         behaviour='/diagnostics: frames received / rectified / skipped by reason',
-        tests=['test/test_node_observable.py::test_diagnostics_count_the_frames_received_and_rectified'],
+        tests=['test/ros/test_node_observable.py::test_diagnostics_count_the_frames_received_and_rectified'],
     ),
     dict(
         id='node-diagnostics-source-always-spec',
@@ -581,7 +581,7 @@ MUTANTS = [
         old="        values = {'source': self._active.source, 'generation': self._active.generation,",
         new="        values = {'source': 'spec', 'generation': self._active.generation,",
         behaviour='/diagnostics: calibration source (spec, file, set_camera_info)',
-        tests=['test/test_node_observable.py::test_diagnostics_source_and_generation_follow_each_adopted_change'],
+        tests=['test/ros/test_node_observable.py::test_diagnostics_source_and_generation_follow_each_adopted_change'],
     ),
     dict(
         id='node-diagnostics-generation-frozen',
@@ -589,7 +589,7 @@ MUTANTS = [
         old="        values = {'source': self._active.source, 'generation': self._active.generation,",
         new="        values = {'source': self._active.source, 'generation': 0,",
         behaviour='/diagnostics: calibration generation (one more per adopted change)',
-        tests=['test/test_node_observable.py::test_diagnostics_source_and_generation_follow_each_adopted_change'],
+        tests=['test/ros/test_node_observable.py::test_diagnostics_source_and_generation_follow_each_adopted_change'],
     ),
     dict(
         id='node-image-rect-qos-always-reliable',
@@ -597,7 +597,7 @@ MUTANTS = [
         old="            self._rect_pub = self.create_publisher(Image, 'image_rect', self._image_qos(self._reliability))",
         new="            self._rect_pub = self.create_publisher(Image, 'image_rect', self._image_qos(ReliabilityPolicy.RELIABLE))",
         behaviour='QoS reliability follows the image publisher: image_rect too',
-        tests=['test/test_node_observable.py::test_image_rect_and_image_raw_qos_follow_the_image_publisher'],
+        tests=['test/ros/test_node_observable.py::test_image_rect_and_image_raw_qos_follow_the_image_publisher'],
     ),
     dict(
         id='node-image-raw-qos-always-best-effort',
@@ -605,7 +605,7 @@ MUTANTS = [
         old='        image_qos = self._image_qos(self._image_reliability, depth=10)',
         new='        image_qos = self._image_qos(ReliabilityPolicy.BEST_EFFORT, depth=10)',
         behaviour="image_raw: its publisher's reliability is matched (checked once a second); depth 10",
-        tests=['test/test_node_observable.py::test_image_rect_and_image_raw_qos_follow_the_image_publisher'],
+        tests=['test/ros/test_node_observable.py::test_image_rect_and_image_raw_qos_follow_the_image_publisher'],
     ),
     dict(
         id='node-camera-info-qos-always-reliable',
@@ -613,7 +613,7 @@ MUTANTS = [
         old='        info_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=self._reliability,',
         new='        info_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=ReliabilityPolicy.RELIABLE,',
         behaviour='camera_info: reliability follows the image publisher (transient local, depth 5)',
-        tests=['test/test_node.py::test_camera_info_reliability_follows_the_image_publisher'],
+        tests=['test/ros/test_node.py::test_camera_info_reliability_follows_the_image_publisher'],
     ),
     dict(
         id='node-timer-stamps-monotonic-clock',
@@ -623,8 +623,8 @@ MUTANTS = [
         new=("        msg.header.stamp = rclpy.time.Time(nanoseconds=time.monotonic_ns()).to_msg()\n"
              "        msg.header.frame_id = self.get_parameter('frame_id').value"),
         behaviour='camera_info while image_raw has no publisher: at publish_rate, stamped now',
-        tests=['test/test_node_observable.py::test_timer_camera_info_comes_at_publish_rate_stamped_now',
-               'test/test_node_contracts.py::test_no_camera_info_of_our_own_while_a_camera_exists'],
+        tests=['test/ros/test_node_observable.py::test_timer_camera_info_comes_at_publish_rate_stamped_now',
+               'test/ros/test_node_contracts.py::test_no_camera_info_of_our_own_while_a_camera_exists'],
     ),
     dict(
         id='node-timer-stamps-frozen',
@@ -635,8 +635,8 @@ MUTANTS = [
              "self.get_clock().now().to_msg()\n"
              "        msg.header.frame_id = self.get_parameter('frame_id').value"),
         behaviour='camera_info while image_raw has no publisher: each stamped now (not the first stamp again)',
-        tests=['test/test_node_observable.py::test_timer_camera_info_comes_at_publish_rate_stamped_now',
-               'test/test_node.py::test_camera_info_from_integer_command_line_parameters'],
+        tests=['test/ros/test_node_observable.py::test_timer_camera_info_comes_at_publish_rate_stamped_now',
+               'test/ros/test_node.py::test_camera_info_from_integer_command_line_parameters'],
     ),
     dict(
         id='node-publish-rate-ignored',
@@ -644,8 +644,8 @@ MUTANTS = [
         old='        self._info_timer = self.create_timer(1.0 / self._rate, self._on_info_timer)',
         new='        self._info_timer = self.create_timer(0.1, self._on_info_timer)',
         behaviour='publish_rate: CameraInfo rate (Hz) while image_raw has no publisher',
-        tests=['test/test_node_observable.py::test_timer_camera_info_comes_at_publish_rate_stamped_now',
-               'test/test_node_contracts.py::test_no_camera_info_of_our_own_while_a_camera_exists'],
+        tests=['test/ros/test_node_observable.py::test_timer_camera_info_comes_at_publish_rate_stamped_now',
+               'test/ros/test_node_contracts.py::test_no_camera_info_of_our_own_while_a_camera_exists'],
     ),
     dict(
         id='node-timer-publishes-beside-a-camera',
@@ -653,7 +653,7 @@ MUTANTS = [
         old='        if not self._camera_exists():\n            self._publish_own_info()',
         new='        self._publish_own_info()',
         behaviour='Only while image_raw has no publisher: CameraInfo of its own (none with a stamp no image has)',
-        tests=['test/test_node_contracts.py::test_no_camera_info_of_our_own_while_a_camera_exists'],
+        tests=['test/ros/test_node_contracts.py::test_no_camera_info_of_our_own_while_a_camera_exists'],
     ),
     dict(
         id='node-read-only-parameters-accept-new-values',
@@ -662,7 +662,7 @@ MUTANTS = [
              '                    same_value(param.name, node.get_parameter(param.name).value, param.value):'),
         new='            if param.name not in undeclared and node.describe_parameter(param.name).read_only:',
         behaviour='Read-only parameters cannot change at run time (given their current value they succeed as no change)',
-        tests=['test/test_node_observable.py::test_read_only_parameters_refuse_new_values'],
+        tests=['test/ros/test_node_observable.py::test_read_only_parameters_refuse_new_values'],
     ),
     dict(
         id='node-set-parameters-not-atomic',
@@ -670,7 +670,7 @@ MUTANTS = [
         old='        values = self._values(parameters)\n',
         new='        values = self._values(parameters[-1:])\n',
         behaviour='One SetParameters request (several values) is one change: validated together, adopted or rejected whole',
-        tests=['test/test_node_contracts.py::test_one_request_with_several_values_is_one_change'],
+        tests=['test/ros/test_node_contracts.py::test_one_request_with_several_values_is_one_change'],
     ),
     dict(
         id='node-set-camera-info-success-although-not-saved',
@@ -678,7 +678,7 @@ MUTANTS = [
         old="""            return False, f' but NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'""",
         new="""            return True, f' but NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'""",
         behaviour='set_camera_info: success means adopted and saved; adopted but not saved answers success: false',
-        tests=['test/test_readme_claims_ros.py::test_set_camera_info_adopted_but_not_saved_answers_false_and_says_so'],
+        tests=['test/product/test_readme_claims_ros.py::test_set_camera_info_adopted_but_not_saved_answers_false_and_says_so'],
     ),
     dict(
         id='node-image-rect-never-withdrawn',
@@ -686,7 +686,7 @@ MUTANTS = [
         old='        elif not self._active.rectify_enabled and self._rect_pub is not None:',
         new='        elif False:',
         behaviour='image_rect is advertised only while rectify is true',
-        tests=['test/test_node_contracts.py::test_image_rect_is_advertised_only_while_rectifying'],
+        tests=['test/ros/test_node_contracts.py::test_image_rect_is_advertised_only_while_rectifying'],
     ),
 
     # round 3: untested behaviours
@@ -698,7 +698,7 @@ MUTANTS = [
         new=("        key = (model, width, height, D.tobytes(), K.tobytes(), R.tobytes(), bx, by,\n"
              "               rx, ry, rw, rh, do_rectify)"),
         behaviour='CameraInfoModel.update: a CameraInfo differing only in P is a change (maps and points follow it)',
-        tests=['test/test_camera_info_model.py::test_update_notices_a_change_of_p_alone'],
+        tests=['test/core/ros_data/test_camera_info_model.py::test_update_notices_a_change_of_p_alone'],
     ),
     dict(
         id='camera-info-model-full-resolution-through-raw-roi',
@@ -708,7 +708,7 @@ MUTANTS = [
         new=("        x, y, _, _ = self.raw_roi\n"
              "        uv = _points(uv_reduced, 'uv_reduced', flat=False)"),
         behaviour='to_full_resolution: with roi.do_rectify, reduced pixels are offset by the rectified ROI',
-        tests=['test/test_camera_info_model.py::test_to_full_resolution_with_do_rectify_goes_through_the_rectified_roi'],
+        tests=['test/core/ros_data/test_camera_info_model.py::test_to_full_resolution_with_do_rectify_goes_through_the_rectified_roi'],
     ),
     dict(
         id='package-url-last-prefix-wins',
@@ -717,7 +717,7 @@ MUTANTS = [
              "                break\n"),
         new=("                path = os.path.join(prefix, 'share', package, rel)\n"),
         behaviour='package:// URLs: the first prefix of AMENT_PREFIX_PATH that has the package wins (overlays)',
-        tests=['test/test_calibration_file.py::test_package_urls_take_the_first_prefix_that_has_the_package'],
+        tests=['test/core/ros_data/test_calibration_file.py::test_package_urls_take_the_first_prefix_that_has_the_package'],
     ),
     dict(
         id='atomic-save-no-directory-fsync',
@@ -725,7 +725,7 @@ MUTANTS = [
         old='            os.fsync(dir_fd)\n',
         new='            pass\n',
         behaviour='Saves are durable: the content is fsynced before the rename, the directory after it',
-        tests=['test/test_calibration_file_save.py::test_the_directory_is_fsynced_after_the_rename'],
+        tests=['test/core/ros_data/test_calibration_file_save.py::test_the_directory_is_fsynced_after_the_rename'],
     ),
     dict(
         id='atomic-save-fsyncs-the-file-not-its-directory',
@@ -733,7 +733,7 @@ MUTANTS = [
         old="        dir_fd = os.open(directory, os.O_RDONLY | getattr(os, 'O_DIRECTORY', 0))",
         new="        dir_fd = os.open(target, os.O_RDONLY)",
         behaviour='Saves are durable: after the rename the directory holding the target is fsynced',
-        tests=['test/test_calibration_file_save.py::test_the_directory_is_fsynced_after_the_rename'],
+        tests=['test/core/ros_data/test_calibration_file_save.py::test_the_directory_is_fsynced_after_the_rename'],
     ),
     dict(
         id='wide-solver-asked-law-falls-back',
@@ -741,7 +741,7 @@ MUTANTS = [
         old='        if not candidates and law is None and len(laws) < len(WIDE_LAWS):',
         new='        if not candidates and len(laws) < len(WIDE_LAWS):',
         behaviour="'wide-<law>' gives that law or an error naming why (never another law silently)",
-        tests=['test/test_wide_fov.py::test_a_law_asked_for_is_the_law_given_or_an_error_naming_why'],
+        tests=['test/core/lens/test_wide_fov.py::test_a_law_asked_for_is_the_law_given_or_an_error_naming_why'],
     ),
     dict(
         id='line-fit-always-highest-order',
@@ -749,7 +749,7 @@ MUTANTS = [
         old='    order = min(bic, key=bic.get)\n',
         new='    order = orders[-1]\n',
         behaviour='The line fit frees a shape term only when the lines pay for it (AIC order choice)',
-        tests=['test/test_estimation.py::test_the_line_fit_frees_only_the_shape_terms_the_lines_pay_for'],
+        tests=['test/core/estimation/test_refine.py::test_the_line_fit_frees_only_the_shape_terms_the_lines_pay_for'],
     ),
     dict(
         id='line-detection-max-curves-keeps-the-first',
@@ -760,7 +760,7 @@ MUTANTS = [
              "    curves.sort(key=lambda c: -c.length_px)\n"
              "    return curves"),
         behaviour='max_curves: line detection keeps the N longest curves',
-        tests=['test/test_line_detection.py::test_max_curves_keeps_the_longest'],
+        tests=['test/core/lines/test_detect.py::test_max_curves_keeps_the_longest'],
     ),
     dict(
         id='refine-coverage-rows-over-columns',
@@ -768,7 +768,7 @@ MUTANTS = [
         old='    gy = np.clip((points[:, 1] / height * grid[1]).astype(int), 0, grid[1] - 1)',
         new='    gy = np.clip((points[:, 1] / height * grid[0]).astype(int), 0, grid[1] - 1)',
         behaviour="coverage: the fraction of an 8 x 6 grid's cells the used curves touch (6 rows down the height)",
-        tests=['test/test_estimation.py::test_coverage_counts_the_cells_of_the_8_by_6_grid_the_points_touch'],
+        tests=['test/core/estimation/test_refine.py::test_coverage_counts_the_cells_of_the_8_by_6_grid_the_points_touch'],
     ),
     dict(
         id='board-fit-rejected-corners-kept',
@@ -778,7 +778,7 @@ MUTANTS = [
         new=("            break\n"
              "        term.copy(weights=weights)\n"),
         behaviour='fit_board: outlier corners are rejected, named and left out of the fit',
-        tests=['test/test_board_fit.py::test_outlier_corners_are_rejected_named_and_left_out'],
+        tests=['test/core/estimation/test_board_fit.py::test_outlier_corners_are_rejected_named_and_left_out'],
     ),
     dict(
         id='refine-zero-shot-error-bar-not-scaled',
@@ -786,7 +786,7 @@ MUTANTS = [
         old='    zs_u_px = None if zs_u.rms_px is None else zs_u.rms_px * scale\n',
         new='    zs_u_px = None if zs_u.rms_px is None else zs_u.rms_px\n',
         behaviour="Refinement of frames at another size than the spec's: the zero-shot error bar is in the frames' pixels",
-        tests=['test/test_estimation.py::test_zero_shot_error_bar_of_frames_at_another_size_is_in_their_pixels'],
+        tests=['test/core/estimation/test_refine.py::test_zero_shot_error_bar_of_frames_at_another_size_is_in_their_pixels'],
     ),
     dict(
         id='online-refiner-detects-with-zero-shot-after-an-offer',
@@ -794,7 +794,7 @@ MUTANTS = [
         old='            self.camera = result.camera  # later frames are detected with it (the frames\' size)\n',
         new='',
         behaviour='refine: after a refined camera is offered, lines are detected with it (the camera in force)',
-        tests=['test/test_online_refinement.py::test_lines_are_detected_with_the_camera_in_force'],
+        tests=['test/core/ros_data/test_online_refinement.py::test_lines_are_detected_with_the_camera_in_force'],
     ),
     dict(
         id='online-refiner-initial-camera-not-used-for-detection',
@@ -803,7 +803,7 @@ MUTANTS = [
              "                      zero_shot_camera(self.spec, width, height, self.solution))"),
         new="            camera = zero_shot_camera(self.spec, width, height, self.solution)",
         behaviour='refine from an earlier refinement: lines are detected with that camera (scaled to the frames)',
-        tests=['test/test_online_refinement.py::test_lines_are_detected_with_the_initial_camera_scaled_to_the_frames'],
+        tests=['test/core/ros_data/test_online_refinement.py::test_lines_are_detected_with_the_initial_camera_scaled_to_the_frames'],
     ),
     dict(
         id='refine-from-images-second-detection-with-zero-shot',
@@ -812,7 +812,7 @@ MUTANTS = [
              "        camera = attempt.camera\n"),
         new=("            break\n"),
         behaviour='refine_from_images: the second detection round uses the refined camera',
-        tests=['test/test_estimation.py::test_refine_from_images_detects_again_with_the_refined_camera'],
+        tests=['test/core/estimation/test_refine.py::test_refine_from_images_detects_again_with_the_refined_camera'],
     ),
     dict(
         id='online-refiner-keeps-frames-while-busy',
@@ -820,7 +820,7 @@ MUTANTS = [
         old='        return not (self._done or self._busy) and (self._last_kept is None or t - self._last_kept >= self.interval)',
         new='        return not self._done and (self._last_kept is None or t - self._last_kept >= self.interval)',
         behaviour='refine: frames offered while the worker is busy are dropped (not copied, not counted)',
-        tests=['test/test_online_refinement.py::test_frames_offered_while_the_worker_is_busy_are_dropped_uncopied_and_uncounted'],
+        tests=['test/core/ros_data/test_online_refinement.py::test_frames_offered_while_the_worker_is_busy_are_dropped_uncopied_and_uncounted'],
     ),
     dict(
         id='online-refiner-pool-of-6',
@@ -828,7 +828,7 @@ MUTANTS = [
         old='MAX_FRAMES = 8\n',
         new='MAX_FRAMES = 6\n',
         behaviour='refine: lines pooled over the last 8 frames taken',
-        tests=['test/test_online_refinement.py::test_the_pool_is_the_newest_8_frames_and_it_finishes_16_frames_after_the_last_offer'],
+        tests=['test/core/ros_data/test_online_refinement.py::test_the_pool_is_the_newest_8_frames_and_it_finishes_16_frames_after_the_last_offer'],
     ),
     dict(
         id='online-refiner-finishes-one-frame-early',
@@ -836,7 +836,7 @@ MUTANTS = [
         old='        finished = self.offered is not None and self.since_offer >= self.finish_after\n',
         new='        finished = self.offered is not None and self.since_offer >= self.finish_after - 1\n',
         behaviour='refine: finished after 16 frames without a better fit',
-        tests=['test/test_online_refinement.py::test_the_pool_is_the_newest_8_frames_and_it_finishes_16_frames_after_the_last_offer'],
+        tests=['test/core/ros_data/test_online_refinement.py::test_the_pool_is_the_newest_8_frames_and_it_finishes_16_frames_after_the_last_offer'],
     ),
     dict(
         id='online-refiner-default-pool-not-sent',
@@ -844,7 +844,7 @@ MUTANTS = [
         old="                               'initial': _camera_tuple(initial), 'max_frames': int(max_frames),",
         new="                               'initial': _camera_tuple(initial), 'max_frames': int(finish_after),",
         behaviour='refine: lines pooled over the last 8 frames taken',
-        tests=['test/test_online_refinement.py::test_the_pool_is_the_newest_8_frames_and_it_finishes_16_frames_after_the_last_offer'],
+        tests=['test/core/ros_data/test_online_refinement.py::test_the_pool_is_the_newest_8_frames_and_it_finishes_16_frames_after_the_last_offer'],
     ),
     dict(
         id='node-refined-p-ignores-balance-and-fov-scale',
@@ -852,7 +852,7 @@ MUTANTS = [
         old="                result.camera, width, height, settings.balance, settings.fov_scale, settings.camera_name,\n",
         new="                result.camera, width, height, 0.0, 1.0, settings.camera_name,\n",
         behaviour='refine: the refined CameraInfo\'s P is chosen by balance and fov_scale, as the zero-shot one\'s',
-        tests=['test/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
+        tests=['test/ros/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
     ),
     dict(
         id='refined-calibration-p-ignores-balance',
@@ -860,7 +860,7 @@ MUTANTS = [
         old='    P = np.hstack([new_camera_matrix(camera, balance, fov_scale), np.zeros((3, 1))])',
         new='    P = np.hstack([new_camera_matrix(camera, 0.0, fov_scale), np.zeros((3, 1))])',
         behaviour='refine: the refined CameraInfo\'s P is chosen by balance and fov_scale, as the zero-shot one\'s',
-        tests=['test/test_online_refinement.py::test_the_refined_record_chooses_p_by_balance_and_fov_scale'],
+        tests=['test/core/ros_data/test_online_refinement.py::test_the_refined_record_chooses_p_by_balance_and_fov_scale'],
     ),
     dict(
         id='node-refine-interval-change-not-passed-to-the-refiner',
@@ -870,7 +870,7 @@ MUTANTS = [
              "            self._refiner.interval = interval\n"),
         new=("        self._refine, self._refine_interval = refine, interval\n"),
         behaviour='refine_interval: a change at run time governs the running refiner',
-        tests=['test/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
+        tests=['test/ros/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
     ),
     # round 3: new code, mutants by an independent reviewer
     dict(
@@ -879,7 +879,7 @@ MUTANTS = [
         old='                sizes[id(n)] = total\n            return sizes[id(n)]\n',
         new='                sizes[id(n)] = total\n                return total\n            return 1  # an alias of a node already counted: counted once\n',
         behaviour='A YAML document whose aliases expand to more than 10,000 values ("billion laughs") is refused at once',
-        tests=['test/test_calibration_file.py', 'test/test_cli_files.py', '-k', 'alias'],
+        tests=['test/core/ros_data/test_calibration_file.py', 'test/cli/test_cli_files.py', '-k', 'alias'],
     ),
     dict(
         id='r3-plausible-skew-sign-ignored',
@@ -887,7 +887,7 @@ MUTANTS = [
         old='        if abs(M[0, 1]) > MAX_SKEW_PER_FOCAL * M[0, 0]:',
         new='        if M[0, 1] > MAX_SKEW_PER_FOCAL * M[0, 0]:',
         behaviour='Plausibility: |skew| of K and P at most 0.1 x fx in magnitude (a large negative skew is refused too)',
-        tests=['test/test_calibration_plausibility.py'],
+        tests=['test/core/ros_data/test_calibration_file_plausibility.py'],
     ),
     dict(
         id='r3-plausible-distortion-rho-nearest-corner',
@@ -895,7 +895,7 @@ MUTANTS = [
         old="(corners[:, 1] - K[1, 2]) / K[1, 1]).max())",
         new="(corners[:, 1] - K[1, 2]) / K[1, 1]).min())",
         behaviour='Plausibility: each distortion term bounded at the image corner farthest from the principal point',
-        tests=['test/test_calibration_plausibility.py'],
+        tests=['test/core/ros_data/test_calibration_file_plausibility.py'],
     ),
     dict(
         id='r3-map-budget-status-kib-read-as-bytes',
@@ -903,7 +903,7 @@ MUTANTS = [
         old='            return int(parts[1]) * 1024 if len(parts) > 1 and parts[1].isdigit() else None',
         new='            return int(parts[1]) if len(parts) > 1 and parts[1].isdigit() else None',
         behaviour='Default map budget: an eighth of what the tightest limit leaves (ulimit less VmSize / VmData, in kB)',
-        tests=['test/test_map_budget.py'],
+        tests=['test/core/ros_data/test_image_frames_map_budget.py'],
     ),
     dict(
         id='r3-node-maps-ignore-calibration-r',
@@ -911,8 +911,8 @@ MUTANTS = [
         old='                                  map_threads=map_threads, R=calibration.R)',
         new='                                  map_threads=map_threads)',
         behaviour="image_rect honours the calibration's rectification rotation R, as image_proc does",
-        tests=['test/test_rectification_rotation.py',
-               'test/test_node_calibration_cycle.py::test_image_rect_honours_the_rotation_of_a_set_camera_info_calibration'],
+        tests=['test/core/ros_data/test_rectify_rotation.py',
+               'test/ros/test_node_calibration_cycle.py::test_image_rect_honours_the_rotation_of_a_set_camera_info_calibration'],
     ),
     dict(
         id='r3-map-builder-running-job-superseded',
@@ -920,7 +920,7 @@ MUTANTS = [
         old='            superseded = replaced is not None and replaced is not job and replaced is not self._running',
         new='            superseded = replaced is not None and replaced is not job',
         behaviour='A job is superseded only if a newer one replaces it before the worker took it (a running build still ends built)',
-        tests=['test/test_map_builder.py', 'test/test_node_calibration_cycle.py::test_set_camera_info_success_means_in_force'],
+        tests=['test/core/ros_data/test_map_builder.py', 'test/ros/test_node_calibration_cycle.py::test_set_camera_info_success_means_in_force'],
     ),
     dict(
         id='r3-map-builder-memory-not-returned-after-build',
@@ -928,8 +928,8 @@ MUTANTS = [
         old="            return_free_memory()  # the build's temporaries and any maps it evicted (heap.py)\n",
         new='',
         behaviour="Memory of rectification maps is given back after each map build (malloc_trim): RSS stays bounded over many frame sizes",
-        tests=['test/test_map_builder.py',
-               'test/test_node_calibration_cycle.py::test_memory_is_given_back_after_many_odd_frame_sizes'],
+        tests=['test/core/ros_data/test_map_builder.py',
+               'test/ros/test_node_calibration_cycle.py::test_memory_is_given_back_after_many_odd_frame_sizes'],
     ),
     dict(
         id='r3-same-value-bool-is-a-number',
@@ -937,8 +937,8 @@ MUTANTS = [
         old='if isinstance(v, (int, float)) and not isinstance(v, bool)]',
         new='if isinstance(v, (int, float))]',
         behaviour='A change is a change when a value differs as a typed value: a bool is never a number (False is not 0)',
-        tests=['test/test_node_parameters.py',
-               'test/test_node_params.py::test_a_rejected_request_is_rejected_whole_and_every_result_says_why'],
+        tests=['test/core/ros_data/test_node_parameters.py',
+               'test/ros/test_node_params.py::test_a_rejected_request_is_rejected_whole_and_every_result_says_why'],
     ),
     dict(
         id='r3-params-file-directory-passes',
@@ -946,8 +946,8 @@ MUTANTS = [
         old='            if not os.path.isfile(path):',
         new='            if not os.path.exists(path):',
         behaviour='A --params-file that cannot be read (missing, a directory) is one clear line, exit 2, no traceback',
-        tests=['test/test_node_parameters.py::test_a_params_file_that_cannot_be_read_is_one_line_naming_it',
-               'test/test_node_params.py::test_a_missing_params_file_is_one_clear_line'],
+        tests=['test/core/ros_data/test_node_parameters.py::test_a_params_file_that_cannot_be_read_is_one_line_naming_it',
+               'test/ros/test_node_params.py::test_a_missing_params_file_is_one_clear_line'],
     ),
     dict(
         id='r3-params-file-last-argument-index-error',
@@ -955,8 +955,8 @@ MUTANTS = [
         old='            if i + 1 >= len(argv):',
         new='            if i + 1 > len(argv):',
         behaviour='--params-file without a file is one clear line, exit 2, no traceback',
-        tests=['test/test_node_parameters.py::test_params_file_as_the_last_argument_says_it_needs_a_file',
-               'test/test_node_params.py::test_a_missing_params_file_is_one_clear_line'],
+        tests=['test/core/ros_data/test_node_parameters.py::test_params_file_as_the_last_argument_says_it_needs_a_file',
+               'test/ros/test_node_params.py::test_a_missing_params_file_is_one_clear_line'],
     ),
     dict(
         id='r3-refiner-dead-worker-after-refined-not-failed',
@@ -964,7 +964,7 @@ MUTANTS = [
         old='            if not self._closed and not self._status.finished:',
         new="            if not self._closed and self._status.state != 'refined':",
         behaviour='refine: a worker that dies after adopting a camera is reported failed (and can be restarted)',
-        tests=['test/test_online_refinement.py', '-k', 'killed or failing or stop'],
+        tests=['test/core/ros_data/test_online_refinement.py', '-k', 'killed or failing or stop'],
     ),
     dict(
         id='r3-refiner-restart-says-refined-before-a-better-fit',
@@ -972,9 +972,9 @@ MUTANTS = [
         old='        if self.offered is not None and (self.offers or self.reference is None):',
         new='        if self.offered is not None:',
         behaviour="refine restarted with a refined calibration in force: state collecting until a fit 0.7x better is offered",
-        tests=['test/test_online_refinement.py::test_a_restarted_refiner_reads_collecting_until_a_fit_beats_the_calibration_in_force',
-               'test/test_online_refinement.py::test_a_restarted_refiner_offers_only_a_fit_better_than_the_calibration_in_force',
-               'test/test_online_refinement.py::test_after_a_refined_camera_only_a_clearly_better_fit_is_offered_and_then_it_finishes'],
+        tests=['test/core/ros_data/test_online_refinement.py::test_a_restarted_refiner_reads_collecting_until_a_fit_beats_the_calibration_in_force',
+               'test/core/ros_data/test_online_refinement.py::test_a_restarted_refiner_offers_only_a_fit_better_than_the_calibration_in_force',
+               'test/core/ros_data/test_online_refinement.py::test_after_a_refined_camera_only_a_clearly_better_fit_is_offered_and_then_it_finishes'],
     ),
     dict(
         id='r3-refiner-size-change-scale-inverted',
@@ -982,8 +982,8 @@ MUTANTS = [
         old='        scale = width / old[0]',
         new='        scale = old[0] / width',
         behaviour='refine: on a frame size change the camera in use and its uncertainty are scaled to the new size (0.7x rule in its pixels)',
-        tests=['test/test_online_refinement.py::test_after_a_size_change_a_fit_must_beat_the_camera_in_use_in_the_new_size_pixels',
-               'test/test_online_refinement.py::test_refinement_follows_the_size_the_stream_has'],
+        tests=['test/core/ros_data/test_online_refinement.py::test_after_a_size_change_a_fit_must_beat_the_camera_in_use_in_the_new_size_pixels',
+               'test/core/ros_data/test_online_refinement.py::test_refinement_follows_the_size_the_stream_has'],
     ),
     dict(
         id='r3-refiner-stop-waits-for-the-worker',
@@ -992,7 +992,7 @@ MUTANTS = [
              "        self._ender.start()\n"),
         new='        self._end_worker(timeout)\n',
         behaviour='refine off: stop() returns at once, the worker is ended in the background (the executor thread never waits for a fit)',
-        tests=['test/test_online_refinement.py', '-k', 'stop'],
+        tests=['test/core/ros_data/test_online_refinement.py', '-k', 'stop'],
     ),
     dict(
         id='r3-rectifier-r-transposed',
@@ -1000,7 +1000,7 @@ MUTANTS = [
         old='        self.R = np.eye(3) if R is None else np.asarray(R, float).reshape(3, 3)',
         new='        self.R = np.eye(3) if R is None else np.asarray(R, float).reshape(3, 3).T',
         behaviour="Rectification applies R as cv2.initUndistortRectifyMap / image_proc do (ray = R^T P^-1 (u, v, 1))",
-        tests=['test/test_rectification_rotation.py'],
+        tests=['test/core/ros_data/test_rectify_rotation.py'],
     ),
     dict(
         id='r3-read-capped-only-directories-refused',
@@ -1008,7 +1008,7 @@ MUTANTS = [
         old='    if not stat.S_ISREG(mode):',
         new='    if stat.S_ISDIR(mode):',
         behaviour='Every file read from users is a regular file: a FIFO or a device is refused without reading, naming what it is',
-        tests=['test/test_cli_files.py', '-k', 'regular_file'],
+        tests=['test/cli/test_cli_files.py', '-k', 'regular_file'],
     ),
     dict(
         id='r3-image-pixel-budget-compared-to-file-bytes',
@@ -1016,7 +1016,7 @@ MUTANTS = [
         old='    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:',
         new='    if size is not None and size[0] * size[1] > MAX_IMAGE_FILE_BYTES:',
         behaviour='Images above 50 megapixels are refused from their header, before decoding',
-        tests=['test/test_cli_files.py', '-k', 'pixel_budget'],
+        tests=['test/cli/test_cli_files.py', '-k', 'pixel_budget'],
     ),
     dict(
         id='r3-cli-rectify-balance-drops-r',
@@ -1024,7 +1024,7 @@ MUTANTS = [
         old='            return camera, new_camera_matrix(camera, balance, fov_scale), calibration.R',
         new='            return camera, new_camera_matrix(camera, balance, fov_scale), None',
         behaviour="rectify --calibration honours the file's R, whether P is the file's or chosen by --balance / --fov-scale",
-        tests=['test/test_rectification_rotation.py'],
+        tests=['test/core/ros_data/test_rectify_rotation.py'],
     ),
     dict(
         id='r3-cli-refine-same-content-counted-twice',
@@ -1035,7 +1035,7 @@ MUTANTS = [
         new=("            seen[key] = digest\n"
              "        seen[key] = digest\n"),
         behaviour='refine: an image given twice (same file or same content) counts once',
-        tests=['test/test_cli_files.py::test_the_same_image_twice_counts_once'],
+        tests=['test/cli/test_cli_files.py::test_the_same_image_twice_counts_once'],
     ),
     dict(
         id='r3-duplicates-positions-read-as-view-numbers',
@@ -1043,7 +1043,7 @@ MUTANTS = [
         old='        return tuple(v for i, v in enumerate(views) if i not in set(self.positions))',
         new='        return tuple(v for i, v in enumerate(views) if v not in set(self.positions))',
         behaviour='Duplicate views (of the views checked) count once in every fit',
-        tests=['test/test_calibrate_checks.py', 'test/test_calibration.py', '-k', 'duplicate or copies'],
+        tests=['test/cli/test_cli_calibrate_checks.py', 'test/core/checkerboard/test_calibration.py', '-k', 'duplicate or copies'],
     ),
     dict(
         id='r3-contradiction-ratio-not-doubled',
@@ -1051,7 +1051,7 @@ MUTANTS = [
         old='    ratio = 2.0 * (held.cost - free.cost)',
         new='    ratio = held.cost - free.cost',
         behaviour='calibrate with a spec: the likelihood-ratio test (2 x cost difference against chi^2) refuses a spec the corners contradict',
-        tests=['test/test_calibrate_checks.py', '-k', 'contradict or right_spec'],
+        tests=['test/cli/test_cli_calibrate_checks.py', '-k', 'contradict or right_spec'],
     ),
     dict(
         id='r3-contradiction-one-degree-of-freedom',
@@ -1059,7 +1059,7 @@ MUTANTS = [
         old='    return ratio, float(chi2_distribution.ppf(1.0 - CONTRADICTION_P, len(fov.keys)))',
         new='    return ratio, float(chi2_distribution.ppf(1.0 - CONTRADICTION_P, 1))',
         behaviour='calibrate with a spec: the contradiction threshold is the chi^2 quantile with one degree per FOV (27.6 for two)',
-        tests=['test/test_calibrate_checks.py', '-k', 'contradict or right_spec'],
+        tests=['test/cli/test_cli_calibrate_checks.py', '-k', 'contradict or right_spec'],
     ),
     dict(
         id='r3-remez-first-reference-at-theta-zero',
@@ -1067,7 +1067,7 @@ MUTANTS = [
         old='    ref = candidates[np.round(np.arange(1, m + 2) * (len(candidates) - 1) / (m + 1)).astype(int)]',
         new='    ref = candidates[np.round(np.arange(0, m + 1) * (len(candidates) - 1) / (m + 1)).astype(int)]',
         behaviour='The distortion fits are the minimax by the numpy exchange for any spec (no stall, no SciPy fallback)',
-        tests=['test/test_camera_models.py', '-k', 'minimax or exchange'],
+        tests=['test/core/lens/test_models.py', '-k', 'minimax or exchange'],
     ),
     dict(
         id='r3-plumb-bob-fit-drops-fy',
@@ -1075,7 +1075,7 @@ MUTANTS = [
         old='    fitted = PlumbBobCamera(camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height, D)',
         new='    fitted = PlumbBobCamera(camera.fx, camera.fx, camera.cx, camera.cy, camera.width, camera.height, D)',
         behaviour='plumb_bob fitted to a camera with fx != fy (a refined one) keeps its own fx and fy',
-        tests=['test/test_camera_models.py', 'test/test_online_refinement.py', '-k', 'plumb_bob'],
+        tests=['test/core/lens/test_models.py', 'test/core/ros_data/test_online_refinement.py', '-k', 'plumb_bob'],
     ),
     dict(
         id='r3-preset-aspect-checked-on-width-only',
@@ -1083,7 +1083,7 @@ MUTANTS = [
         old='    if result.width * spec.height != result.height * spec.width:',
         new="    if fields.get('width') is not None and result.width * spec.height != result.height * spec.width:",
         behaviour="A preset at another aspect ratio (width and/or height given) is refused: its FOVs are its aspect ratio's",
-        tests=['test/test_presets.py', 'test/test_cli_files.py', '-k', 'aspect'],
+        tests=['test/core/zeroshot/test_presets.py', 'test/cli/test_cli_files.py', '-k', 'aspect'],
     ),
     dict(
         id='r3-param-service-unchanged-read-only-succeeds-in-rejected-request',
@@ -1091,8 +1091,8 @@ MUTANTS = [
         old='                            if i in unchanged and result.successful else',
         new='                            if i in unchanged else',
         behaviour='A rejected SetParameters request is rejected whole: its unchanged read-only values fail too, each with the reason',
-        tests=['test/test_node_params.py::test_a_rejected_request_is_rejected_whole_and_every_result_says_why',
-               'test/test_node_observable.py::test_read_only_parameters_refuse_new_values'],
+        tests=['test/ros/test_node_params.py::test_a_rejected_request_is_rejected_whole_and_every_result_says_why',
+               'test/ros/test_node_observable.py::test_read_only_parameters_refuse_new_values'],
     ),
     dict(
         id='r3-node-restarted-refiner-forgets-reference',
@@ -1100,7 +1100,7 @@ MUTANTS = [
         old='                                      reference_uncertainty_px=reference)',
         new='                                      reference_uncertainty_px=None)',
         behaviour='refine off and on with a refined calibration in force: the new refiner must beat it by 0.7x (never re-adopts a fit no better)',
-        tests=['test/test_node_params.py::test_a_restarted_refiner_does_not_readopt_a_fit_that_is_not_better'],
+        tests=['test/ros/test_node_params.py::test_a_restarted_refiner_does_not_readopt_a_fit_that_is_not_better'],
     ),
     dict(
         id='r3-node-uncalibrated-error-never-cleared',
@@ -1108,9 +1108,9 @@ MUTANTS = [
         old='            self._uncalibrated = None\n            return calibration\n',
         new='            return calibration\n',
         behaviour='/diagnostics reports ERROR only while frames of an aspect ratio no calibration describes come',
-        tests=['test/test_node.py::test_the_aspect_ratio_error_clears_once_frames_the_calibration_describes_come',
-               'test/test_bringup.py::test_launch_default_spec_and_frames_of_another_aspect_ratio',
-               'test/test_node.py::test_bad_frames_are_skipped_counted_and_survived'],
+        tests=['test/ros/test_node.py::test_the_aspect_ratio_error_clears_once_frames_the_calibration_describes_come',
+               'test/product/test_bringup.py::test_launch_default_spec_and_frames_of_another_aspect_ratio',
+               'test/ros/test_node.py::test_bad_frames_are_skipped_counted_and_survived'],
     ),
     dict(
         id='r3-node-set-camera-info-waits-milliseconds',
@@ -1118,7 +1118,7 @@ MUTANTS = [
         old='        job.finished.wait(SET_CAMERA_INFO_WAIT_SECONDS)',
         new='        job.finished.wait(SET_CAMERA_INFO_WAIT_SECONDS / 1000)',
         behaviour='set_camera_info waits up to 3 s for the maps: a calibration whose maps build in that time is answered "adopted and saved", in force',
-        tests=['test/test_node_calibration_cycle.py', 'test/test_node.py', 'test/test_readme_claims_ros.py',
+        tests=['test/ros/test_node_calibration_cycle.py', 'test/ros/test_node.py', 'test/product/test_readme_claims_ros.py',
                '-k', 'set_camera_info'],  # with test_a_small_calibration_from_set_camera_info_is_answered_in_force_and_saved
     ),
     dict(
@@ -1127,8 +1127,8 @@ MUTANTS = [
         old='        if pending is not None and job.active.generation >= pending[1]:',
         new='        if pending is not None and job.active.generation > pending[1]:',
         behaviour='set_camera_info answered "not in force yet": the calibration is saved once its maps are built and it is in force',
-        tests=['test/test_node_calibration_cycle.py::test_a_calibration_whose_maps_take_long_is_answered_as_not_in_force_yet_and_saved_when_it_is',
-               'test/test_node_calibration_cycle.py::test_set_camera_info_success_means_in_force'],
+        tests=['test/ros/test_node_calibration_cycle.py::test_a_calibration_whose_maps_take_long_is_answered_as_not_in_force_yet_and_saved_when_it_is',
+               'test/ros/test_node_calibration_cycle.py::test_set_camera_info_success_means_in_force'],
     ),
     # --- round 4: the lens-law prior (one FOV), its error bar, FOV consistency -----------------
     # (Left out as equivalent in effect, measured: matched_a's corner angle without its a (the
@@ -1141,7 +1141,7 @@ MUTANTS = [
         old="    if width == height:\n        return 'long_side'\n    across_width",
         new='    across_width',
         behaviour="A square image's hfov and vfov span the same side and give the same camera",
-        tests=['test/test_lens_prior.py::test_portrait_one_fov_is_the_transposed_landscape'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_portrait_one_fov_is_the_transposed_landscape'],
     ),
     dict(
         id='r4-prior-aspect-width-over-height',
@@ -1150,9 +1150,9 @@ MUTANTS = [
         new='        aspect = width / height',
         behaviour='The prior is looked up at the aspect ratio long side / short side: a portrait image gets its '
                   "landscape twin's lens (portrait = transposed landscape)",
-        tests=['test/test_lens_prior.py::test_portrait_one_fov_is_the_transposed_landscape',
-               'test/test_lens_prior.py::test_every_fov_of_a_portrait_image_is_that_of_the_transposed_landscape',
-               'test/test_lens_prior.py::test_a_spec_at_a_table_node_gets_that_rows_shape'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_portrait_one_fov_is_the_transposed_landscape',
+               'test/core/zeroshot/test_lens_prior.py::test_every_fov_of_a_portrait_image_is_that_of_the_transposed_landscape',
+               'test/core/zeroshot/test_lens_prior.py::test_a_spec_at_a_table_node_gets_that_rows_shape'],
     ),
     dict(
         id='r4-prior-aspect-interpolated-linearly',
@@ -1160,9 +1160,9 @@ MUTANTS = [
         old='        x = math.log(aspect)',
         new='        x = aspect',
         behaviour='Between aspect nodes the table is interpolated in log aspect (a 16:9 image gets the 16:9 row)',
-        tests=['test/test_lens_prior.py::test_a_spec_at_a_table_node_gets_that_rows_shape',
-               'test/test_lens_prior.py::test_between_nodes_the_table_is_interpolated_in_log_a_over_fov_and_log_aspect',
-               'test/test_lens_prior.py::test_t265_diagonal_163'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_a_spec_at_a_table_node_gets_that_rows_shape',
+               'test/core/zeroshot/test_lens_prior.py::test_between_nodes_the_table_is_interpolated_in_log_a_over_fov_and_log_aspect',
+               'test/core/zeroshot/test_lens_prior.py::test_t265_diagonal_163'],
     ),
     dict(
         id='r4-prior-looked-up-at-half-angle',
@@ -1170,8 +1170,8 @@ MUTANTS = [
         old='        v = self.tables[side].at(float(fov_deg), aspect)',
         new='        v = self.tables[side].at(float(fov_deg) / 2.0, aspect)',
         behaviour='The table is keyed by the full FOV (edge to edge), not the half-angle',
-        tests=['test/test_lens_prior.py::test_hero9_wide_hfov_alone_is_near_its_two_fov_answer',
-               'test/test_lens_prior.py::test_one_fov_fisheye_is_never_a_pinhole'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_hero9_wide_hfov_alone_is_near_its_two_fov_answer',
+               'test/core/zeroshot/test_lens_prior.py::test_one_fov_fisheye_is_never_a_pinhole'],
     ),
     dict(
         id='r4-prior-few-lenses-text-inverted',
@@ -1180,10 +1180,10 @@ MUTANTS = [
         new='        if self.lenses < FEW_LENSES:',
         behaviour="The assumption names how many real lenses of about that FOV weigh in ('the N real lenses of about "
                   "that FOV among 3,147 calibrations'); 'the nearest real lenses' only where few do",
-        tests=['test/test_lens_prior.py::test_solve_says_what_it_assumed',
-               'test/test_lens_prior.py::test_the_assumption_says_how_many_real_lenses_weigh_in',
-               'test/test_lens_prior.py::test_one_fov_fisheye_is_never_a_pinhole',
-               'test/test_cli.py::test_batch_reports_bad_rows_and_goes_on'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_solve_says_what_it_assumed',
+               'test/core/zeroshot/test_lens_prior.py::test_the_assumption_says_how_many_real_lenses_weigh_in',
+               'test/core/zeroshot/test_lens_prior.py::test_one_fov_fisheye_is_never_a_pinhole',
+               'test/cli/test_cli.py::test_batch_reports_bad_rows_and_goes_on'],
     ),
     dict(
         id='r4-prior-low-percentile-is-the-median',
@@ -1191,10 +1191,10 @@ MUTANTS = [
         old="math.exp(v['a']), math.exp(v['a_low']),",
         new="math.exp(v['a']), math.exp(v['a']),",
         behaviour="The error bar of one FOV carries the spread of real lens shapes: the 16th AND the 84th percentile",
-        tests=['test/test_lens_prior.py::test_a_spec_at_a_table_node_gets_that_rows_shape',
-               'test/test_lens_prior.py::test_the_lens_shape_spread_is_the_rms_of_the_two_percentile_cameras',
-               'test/test_lens_prior.py::test_one_fov_error_bar_carries_the_spread_of_lens_shapes',
-               'test/test_lens_prior.py::test_error_bars_are_honest_for_every_kind_of_input'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_a_spec_at_a_table_node_gets_that_rows_shape',
+               'test/core/zeroshot/test_lens_prior.py::test_the_lens_shape_spread_is_the_rms_of_the_two_percentile_cameras',
+               'test/core/zeroshot/test_lens_prior.py::test_one_fov_error_bar_carries_the_spread_of_lens_shapes',
+               'test/core/zeroshot/test_lens_prior.py::test_error_bars_are_honest_for_every_kind_of_input'],
     ),
     dict(
         id='r4-solver-one-fov-ignores-forced-law',
@@ -1203,7 +1203,7 @@ MUTANTS = [
             "    _check_representable(spec, proj)\n    shape = lens_shape(",
         new="    proj = PROJECTIONS[DEFAULT_PROJECTION]\n    _check_representable(spec, proj)\n    shape = lens_shape(",
         behaviour='One FOV with a forced projection: that law, with the a that follows the prior lens',
-        tests=['test/test_lens_prior.py::test_a_forced_law_follows_the_prior_lens'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_a_forced_law_follows_the_prior_lens'],
     ),
     dict(
         id='r4-solver-one-fov-corner-is-the-diagonal',
@@ -1211,7 +1211,7 @@ MUTANTS = [
         old='    a = a_for_law(shape, proj, radius, half_angle, spec.diagonal / 2.0, math.radians(89.9))',
         new='    a = a_for_law(shape, proj, radius, half_angle, spec.diagonal, math.radians(89.9))',
         behaviour="A forced law follows the prior lens over the image, out to its corner (half the diagonal)",
-        tests=['test/test_lens_prior.py::test_a_forced_law_follows_the_prior_lens'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_a_forced_law_follows_the_prior_lens'],
     ),
     dict(
         id='r4-solver-wide-fallback-forgets-one-fov',
@@ -1220,8 +1220,8 @@ MUTANTS = [
         new='        if projection != \'auto\':\n            raise\n        return _solve_wide(spec, projection)',
         behaviour='One FOV below 180 whose corners reach 90 degrees off-axis: the wide model with the same prior lens '
                   '(f continuous through 180)',
-        tests=['test/test_lens_prior.py::test_one_fov_is_continuous_through_180',
-               'test/test_lens_prior.py::test_one_fov_fisheye_is_never_a_pinhole'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_one_fov_is_continuous_through_180',
+               'test/core/zeroshot/test_lens_prior.py::test_one_fov_fisheye_is_never_a_pinhole'],
     ),
     dict(
         id='r4-solver-circle-assumption-with-fovs',
@@ -1229,7 +1229,7 @@ MUTANTS = [
         old="        if getattr(self.spec, 'circle_diameter', None) is not None and not self.spec.given():",
         new="        if getattr(self.spec, 'circle_diameter', None) is not None:",
         behaviour='The circle form beside a FOV pins the lens: nothing assumed (assumption None)',
-        tests=['test/test_lens_prior.py::test_two_fovs_or_more_never_use_the_prior'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_two_fovs_or_more_never_use_the_prior'],
     ),
     dict(
         id='r4-solver-default-fov-tolerance-two-degrees',
@@ -1237,8 +1237,8 @@ MUTANTS = [
         old='                    fov_tolerance: float = FOV_TOLERANCE_DEG, lens_prior: bool = True) -> ZeroShotSolution:',
         new='                    fov_tolerance: float = 2 * FOV_TOLERANCE_DEG, lens_prior: bool = True) -> ZeroShotSolution:',
         behaviour='By default a FOV the solved camera misses by more than 1 degree is warned about',
-        tests=['test/test_spec_consistency.py::test_by_default_a_fov_missed_by_more_than_one_degree_is_warned_about',
-               'test/test_spec_consistency.py::test_fov_tolerance_sets_the_threshold_and_is_checked'],
+        tests=['test/core/zeroshot/test_spec_consistency.py::test_by_default_a_fov_missed_by_more_than_one_degree_is_warned_about',
+               'test/core/zeroshot/test_spec_consistency.py::test_fov_tolerance_sets_the_threshold_and_is_checked'],
     ),
     dict(
         id='r4-wide-one-fov-ignores-lens-prior-flag',
@@ -1246,7 +1246,7 @@ MUTANTS = [
         old="    if len(pair) == 1 and one_fov and pair[0].name != 'circle':",
         new="    if len(pair) == 1 and pair[0].name != 'circle':",
         behaviour="lens_prior=False keeps the paper's reading: one FOV of 180 or more is the pure law a = 1",
-        tests=['test/test_lens_prior.py::test_lens_prior_false_is_the_papers_reading'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_lens_prior_false_is_the_papers_reading'],
     ),
     dict(
         id='r4-wide-one-fov-matched-to-the-fov-edge',
@@ -1254,8 +1254,8 @@ MUTANTS = [
         old='            a = a_for_law(shape, lw, c.radius, c.half_angle, spec.diagonal / 2.0)',
         new='            a = a_for_law(shape, lw, c.radius, c.half_angle, c.radius)',
         behaviour="A forced wide law follows the prior lens over the whole image, out to its corner",
-        tests=['test/test_lens_prior.py::test_a_forced_law_follows_the_prior_lens',
-               'test/test_lens_prior.py::test_a_forced_wide_law_follows_the_prior_lens_across_the_short_side'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_a_forced_law_follows_the_prior_lens',
+               'test/core/zeroshot/test_lens_prior.py::test_a_forced_wide_law_follows_the_prior_lens_across_the_short_side'],
     ),
     dict(
         id='r4-uncertainty-spread-one-sided',
@@ -1263,9 +1263,9 @@ MUTANTS = [
         old='    for a_table in (shape.a_low, shape.a_high):',
         new='    for a_table in (shape.a_high,):',
         behaviour='The lens-shape spread is the RMS of the cameras at the 16th and the 84th percentile',
-        tests=['test/test_lens_prior.py::test_the_lens_shape_spread_is_the_rms_of_the_two_percentile_cameras',
-               'test/test_lens_prior.py::test_one_fov_error_bar_carries_the_spread_of_lens_shapes',
-               'test/test_lens_prior.py::test_error_bars_are_honest_for_every_kind_of_input'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_the_lens_shape_spread_is_the_rms_of_the_two_percentile_cameras',
+               'test/core/zeroshot/test_lens_prior.py::test_one_fov_error_bar_carries_the_spread_of_lens_shapes',
+               'test/core/zeroshot/test_lens_prior.py::test_error_bars_are_honest_for_every_kind_of_input'],
     ),
     dict(
         id='r4-uncertainty-spread-root-sum-not-rms',
@@ -1273,9 +1273,9 @@ MUTANTS = [
         old='    return math.sqrt(sum(squares) / len(squares)), shape',
         new='    return math.sqrt(sum(squares)), shape',
         behaviour='The lens-shape spread is a 1-sigma figure: the root MEAN square of the two percentile cameras',
-        tests=['test/test_lens_prior.py::test_the_lens_shape_spread_is_the_rms_of_the_two_percentile_cameras',
-               'test/test_lens_prior.py::test_one_fov_error_bar_carries_the_spread_of_lens_shapes',
-               'test/test_lens_prior.py::test_error_bars_are_honest_for_every_kind_of_input'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_the_lens_shape_spread_is_the_rms_of_the_two_percentile_cameras',
+               'test/core/zeroshot/test_lens_prior.py::test_one_fov_error_bar_carries_the_spread_of_lens_shapes',
+               'test/core/zeroshot/test_lens_prior.py::test_error_bars_are_honest_for_every_kind_of_input'],
     ),
     dict(
         id='r4-uncertainty-circle-spread-over-whole-image',
@@ -1283,9 +1283,9 @@ MUTANTS = [
         old='    pixels = pixel_grid(camera.width, camera.height, grid, image_circle_radius(spec))',
         new='    pixels = pixel_grid(camera.width, camera.height, grid)',
         behaviour='The circle form alone: its error bar (the lens-shape spread too) is over the image circle',
-        tests=['test/test_lens_prior.py::test_the_circle_forms_spread_is_over_its_circle_from_lenses_across_its_side',
-               'test/test_lens_prior.py::test_circle_alone_has_an_error_bar_over_its_circle',
-               'test/test_lens_prior.py::test_error_bars_are_honest_for_every_kind_of_input'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_the_circle_forms_spread_is_over_its_circle_from_lenses_across_its_side',
+               'test/core/zeroshot/test_lens_prior.py::test_circle_alone_has_an_error_bar_over_its_circle',
+               'test/core/zeroshot/test_lens_prior.py::test_error_bars_are_honest_for_every_kind_of_input'],
     ),
     dict(
         id='r4-uncertainty-circle-side-from-diameter',
@@ -1293,9 +1293,9 @@ MUTANTS = [
         old='                                       nearest_side(c.radius, spec.width, spec.height))',
         new='                                       nearest_side(2 * c.radius, spec.width, spec.height))',
         behaviour="The circle form alone: the spread of real lenses whose FOV spans the side its radius is closest to",
-        tests=['test/test_lens_prior.py::test_the_circle_forms_spread_is_over_its_circle_from_lenses_across_its_side',
-               'test/test_lens_prior.py::test_circle_alone_has_an_error_bar_over_its_circle',
-               'test/test_lens_prior.py::test_error_bars_are_honest_for_every_kind_of_input'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_the_circle_forms_spread_is_over_its_circle_from_lenses_across_its_side',
+               'test/core/zeroshot/test_lens_prior.py::test_circle_alone_has_an_error_bar_over_its_circle',
+               'test/core/zeroshot/test_lens_prior.py::test_error_bars_are_honest_for_every_kind_of_input'],
     ),
     dict(
         id='r4-uncertainty-shape-held-principal-point-fixed',
@@ -1303,9 +1303,9 @@ MUTANTS = [
         old="SCALE_PARAMETERS = ('f', 'cx', 'cy')",
         new="SCALE_PARAMETERS = ('f',)",
         behaviour='One FOV: the FOV part of the error bar is f AND the principal point (its prior, 1.1 % of the width)',
-        tests=['test/test_lens_prior.py::test_one_fov_error_bar_frees_the_principal_point_under_its_prior',
-               'test/test_lens_prior.py::test_one_fov_error_bar_carries_the_spread_of_lens_shapes',
-               'test/test_lens_prior.py::test_error_bars_are_honest_for_every_kind_of_input'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_one_fov_error_bar_frees_the_principal_point_under_its_prior',
+               'test/core/zeroshot/test_lens_prior.py::test_one_fov_error_bar_carries_the_spread_of_lens_shapes',
+               'test/core/zeroshot/test_lens_prior.py::test_error_bars_are_honest_for_every_kind_of_input'],
     ),
     dict(
         id='r4-uncertainty-ill-conditioned-on-the-total',
@@ -1313,7 +1313,7 @@ MUTANTS = [
         old='    elif result.fov_part_px > ILL_CONDITIONED_FRACTION * spec.width:',
         new='    elif result.rms_px > ILL_CONDITIONED_FRACTION * spec.width:',
         behaviour='The ill-conditioning warning is about the FOV part only (a one-FOV fisheye is not ill-conditioned)',
-        tests=['test/test_lens_prior.py::test_one_fov_error_bar_carries_the_spread_of_lens_shapes'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_one_fov_error_bar_carries_the_spread_of_lens_shapes'],
     ),
     dict(
         id='r4-consistency-extra-limit-ignores-tolerance',
@@ -1322,8 +1322,8 @@ MUTANTS = [
         new='    extra_limit = EXTRA_FOV_WARNING_DEG',
         behaviour='A FOV beside the pair is warned about when missed by more than max(tolerance, 15 degrees): '
                   '--fov-tolerance 20 silences a 17-degree diagonal miss',
-        tests=['test/test_spec_consistency.py::test_a_tolerance_wider_than_15_degrees_holds_for_the_diagonal_beside_the_pair_too',
-               'test/test_spec_consistency.py::test_a_diagonal_beside_hfov_and_vfov_is_warned_about_only_when_far_off'],
+        tests=['test/core/zeroshot/test_spec_consistency.py::test_a_tolerance_wider_than_15_degrees_holds_for_the_diagonal_beside_the_pair_too',
+               'test/core/zeroshot/test_spec_consistency.py::test_a_diagonal_beside_hfov_and_vfov_is_warned_about_only_when_far_off'],
     ),
     dict(
         id='r4-spec-swapped-error-suggests-the-same-size',
@@ -1331,7 +1331,7 @@ MUTANTS = [
         old="        raise SpecError('width, height', f'{w}x{h}', f'{h}x{w}, or vfov greater than hfov for a {w}x{h} image',",
         new="        raise SpecError('width, height', f'{w}x{h}', f'{w}x{h}, or vfov greater than hfov for a {w}x{h} image',",
         behaviour="Width and height swapped: the error's allowed value is the swapped size (1920x1080 for 1080x1920)",
-        tests=['test/test_spec_consistency.py', '-k', 'swapped and not cli'],
+        tests=['test/core/zeroshot/test_spec_consistency.py', '-k', 'swapped and not cli'],
     ),
     dict(
         id='r4-cli-batch-assumption-not-warned',
@@ -1339,7 +1339,7 @@ MUTANTS = [
         old='            warnings += _assumption_warnings(record)\n',
         new='',
         behaviour="solve --batch: a row of one FOV says what it assumed in its record's warning and on stderr",
-        tests=['test/test_cli.py::test_batch_reports_bad_rows_and_goes_on'],
+        tests=['test/cli/test_cli.py::test_batch_reports_bad_rows_and_goes_on'],
     ),
     dict(
         id='r4-cli-calibrate-spec-warning-at-default-tolerance',
@@ -1347,8 +1347,8 @@ MUTANTS = [
         old="        return solve_zero_shot(spec, 'auto', fov_tolerance=fov_tolerance).warnings",
         new="        return solve_zero_shot(spec, 'auto').warnings",
         behaviour='calibrate warns about the spec at --fov-tolerance (as solve, refine)',
-        tests=['test/test_spec_consistency.py::test_cli_calibrate_warns_about_the_spec',
-               'test/test_cli.py::test_calibrate_fov_tolerance_moves_the_fit_and_bad_values_are_one_line'],
+        tests=['test/core/zeroshot/test_spec_consistency.py::test_cli_calibrate_warns_about_the_spec',
+               'test/cli/test_cli.py::test_calibrate_fov_tolerance_moves_the_fit_and_bad_values_are_one_line'],
     ),
     dict(
         id='r4-cli-refine-spec-warning-at-default-tolerance',
@@ -1357,7 +1357,7 @@ MUTANTS = [
             "    # the images are detected",
         new="    solution = solve_zero_shot(spec, 'auto')\n    # the images are detected",
         behaviour='refine warns about the spec at --fov-tolerance (as solve, calibrate)',
-        tests=['test/test_spec_consistency.py::test_cli_refine_warns_in_its_text_and_json'],
+        tests=['test/core/zeroshot/test_spec_consistency.py::test_cli_refine_warns_in_its_text_and_json'],
     ),
     dict(
         id='r4-node-one-fov-is-a-pinhole',
@@ -1366,7 +1366,7 @@ MUTANTS = [
         new='    solution = solve_zero_shot(settings.spec, settings.projection, lens_prior=False)',
         behaviour="The node reads one FOV as the CLI does (the lens shape of real lenses of that FOV, never a pinhole) "
                   "and logs what it assumed",
-        tests=['test/test_lens_prior.py::test_the_node_reads_one_fov_as_the_cli_does'],
+        tests=['test/core/zeroshot/test_lens_prior.py::test_the_node_reads_one_fov_as_the_cli_does'],
     ),
     dict(
         id='r4-node-change-not-warned',
@@ -1374,7 +1374,7 @@ MUTANTS = [
         old='        self._warn_spec(summary)\n        self._warn_fit(summary)\n        return SetParametersResult(successful=True)',
         new='        self._warn_fit(summary)\n        return SetParametersResult(successful=True)',
         behaviour="A parameter change to a spec whose FOVs the camera misses is a WARN ('spec: ...'), as at start-up",
-        tests=['test/test_node_params.py::test_a_spec_whose_fovs_the_camera_misses_is_warned_at_start_up_on_a_change_and_in_diagnostics'],
+        tests=['test/ros/test_node_params.py::test_a_spec_whose_fovs_the_camera_misses_is_warned_at_start_up_on_a_change_and_in_diagnostics'],
     ),
     # --- round 5: the image region, the image circle as evidence, curves that stay put --------
     dict(
@@ -1384,7 +1384,7 @@ MUTANTS = [
         new='        for order in (range(n),):',
         behaviour='Letterbox bars (uniformly black or blown-out full rows / columns) are left out at every border, '
                   'the bottom and the right too',
-        tests=['test/test_image_region.py::test_black_and_blown_out_borders_are_left_out'],
+        tests=['test/core/lines/test_image_region.py::test_black_and_blown_out_borders_are_left_out'],
     ),
     dict(
         id='r5-region-blown-out-not-a-bar',
@@ -1392,7 +1392,7 @@ MUTANTS = [
         old='    flat = (grey <= BLACK_LEVEL + 5) | (grey >= SATURATED_LEVEL)',
         new='    flat = grey <= BLACK_LEVEL + 5',
         behaviour='Blown-out (saturated) border strips are left out of the usable region, as black ones are',
-        tests=['test/test_image_region.py::test_black_and_blown_out_borders_are_left_out'],
+        tests=['test/core/lines/test_image_region.py::test_black_and_blown_out_borders_are_left_out'],
     ),
     dict(
         id='r5-region-margin-outward',
@@ -1400,7 +1400,7 @@ MUTANTS = [
         old='        mask &= _disc(grey.shape, circle.cx, circle.cy, circle.radius - margin)',
         new='        mask &= _disc(grey.shape, circle.cx, circle.cy, circle.radius + margin)',
         behaviour='The usable region stops inside the image circle by the margin (the boundary is never a line)',
-        tests=['test/test_image_region.py::test_the_circle_of_a_190_degree_circular_lens_is_found_within_a_pixel'],
+        tests=['test/core/lines/test_image_region.py::test_the_circle_of_a_190_degree_circular_lens_is_found_within_a_pixel'],
     ),
     dict(
         id='r5-region-margin-override-ignored',
@@ -1408,7 +1408,7 @@ MUTANTS = [
         old='    margin = default_margin_px(w, h, circle) if margin_px is None else float(margin_px)',
         new='    margin = default_margin_px(w, h, circle)',
         behaviour='find_image_region(image, margin_px): the margin given overrides the default one',
-        tests=['test/test_image_region.py::test_a_margin_given_overrides_the_default'],
+        tests=['test/core/lines/test_image_region.py::test_a_margin_given_overrides_the_default'],
     ),
     dict(
         id='r5-region-margin-without-circle-sigmas',
@@ -1417,7 +1417,7 @@ MUTANTS = [
         new='        m += circle.fall_px',
         behaviour="The usable region stops three measurement sigmas (radius and centre) further inside an image "
                   "circle measured less precisely",
-        tests=['test/test_image_region.py::test_a_less_precisely_measured_circle_leaves_a_wider_margin'],
+        tests=['test/core/lines/test_image_region.py::test_a_less_precisely_measured_circle_leaves_a_wider_margin'],
     ),
     dict(
         id='r5-region-min-radius-of-longer-side',
@@ -1426,7 +1426,7 @@ MUTANTS = [
         new='    return ((r >= MIN_RADIUS * max(w, h)) & (r <= 0.5 * math.hypot(w, h))',
         behaviour='An image circle is plausible from a quarter of the SHORTER side: a small circle on a wide '
                   '16:9 frame is found',
-        tests=['test/test_image_region.py::test_a_small_circle_on_a_wide_frame_is_found'],
+        tests=['test/core/lines/test_image_region.py::test_a_small_circle_on_a_wide_frame_is_found'],
     ),
     dict(
         id='r5-region-one-sided-arc-is-a-circle',
@@ -1434,8 +1434,8 @@ MUTANTS = [
         old='    if arc < 60.0 or not opposite:',
         new='    if arc < 60.0:',
         behaviour='An arc seen on one side only (a dark floor, a shadow, the night sky) is not an image circle',
-        tests=['test/test_image_region.py::test_a_dark_region_bounded_by_an_arc_on_one_side_only_is_not_an_image_circle',
-               'test/test_image_region.py::test_no_circle_in_rectilinear_full_frame_or_dark_images'],
+        tests=['test/core/lines/test_image_region.py::test_a_dark_region_bounded_by_an_arc_on_one_side_only_is_not_an_image_circle',
+               'test/core/lines/test_image_region.py::test_no_circle_in_rectilinear_full_frame_or_dark_images'],
     ),
     dict(
         id='r5-combine-cy-from-cx',
@@ -1443,8 +1443,8 @@ MUTANTS = [
         old='    cy, sy = mean(np.array([c.cy for c in found]), cs)',
         new='    cy, sy = mean(np.array([c.cx for c in found]), cs)',
         behaviour="Several images' circles combine into one camera's: the weighted mean of each of cx, cy, radius",
-        tests=['test/test_image_region.py::test_a_precise_measurement_outweighs_a_loose_one_in_every_coordinate',
-               'test/test_image_region.py::test_measurements_of_several_images_are_combined'],
+        tests=['test/core/lines/test_image_region.py::test_a_precise_measurement_outweighs_a_loose_one_in_every_coordinate',
+               'test/core/lines/test_image_region.py::test_measurements_of_several_images_are_combined'],
     ),
     dict(
         id='r5-combine-weights-not-inverse-variance',
@@ -1452,8 +1452,8 @@ MUTANTS = [
         old='        wts = 1.0 / np.square(sigmas)',
         new='        wts = 1.0 / np.asarray(sigmas)',
         behaviour='combine_circles: inverse-VARIANCE weighted means (a precise measurement outweighs a loose one)',
-        tests=['test/test_image_region.py::test_a_precise_measurement_outweighs_a_loose_one_in_every_coordinate',
-               'test/test_image_region.py::test_measurements_of_several_images_are_combined'],
+        tests=['test/core/lines/test_image_region.py::test_a_precise_measurement_outweighs_a_loose_one_in_every_coordinate',
+               'test/core/lines/test_image_region.py::test_measurements_of_several_images_are_combined'],
     ),
     dict(
         id='r5-combine-scatter-not-widened',
@@ -1461,7 +1461,7 @@ MUTANTS = [
         old='        return m, sd * math.sqrt(max(1.0, chi2))',
         new='        return m, sd',
         behaviour='combine_circles: measurements that scatter more than their sigmas allow widen the sigma',
-        tests=['test/test_image_region.py', '-k', 'combined'],
+        tests=['test/core/lines/test_image_region.py', '-k', 'combined'],
     ),
     dict(
         id='r5-static-min-share-floor',
@@ -1470,7 +1470,7 @@ MUTANTS = [
         new='    needed = max(1, math.floor(MIN_SHARE * (len(keys) - 1)))',
         behaviour='A curve is static when found in at least three quarters of the other images (all of them up to '
                   'four images): two of three frames sharing a scene line by chance keep it',
-        tests=['test/test_static_curves.py', '-k', 'not refine and not cli'],
+        tests=['test/core/lines/test_static_curves.py', '-k', 'not refine and not cli'],
     ),
     dict(
         id='r5-static-edge-sign-ignored',
@@ -1479,7 +1479,7 @@ MUTANTS = [
         new='    ratio = np.abs(there) / magnitude',
         behaviour="The same edge keeps one sign along the curve: a tiled floor's alternating edges under it are "
                   'texture, not the body',
-        tests=['test/test_static_curves.py', '-k', 'not refine and not cli'],
+        tests=['test/core/lines/test_static_curves.py', '-k', 'not refine and not cli'],
     ),
     dict(
         id='r5-static-still-camera-inverted',
@@ -1487,7 +1487,7 @@ MUTANTS = [
         old='    if static.mean() > STILL_CAMERA_SHARE:',
         new='    if static.mean() < STILL_CAMERA_SHARE:',
         behaviour='A camera that did not move keeps every curve; a moving one loses only the body',
-        tests=['test/test_static_curves.py', '-k', 'not refine and not cli'],
+        tests=['test/core/lines/test_static_curves.py', '-k', 'not refine and not cli'],
     ),
     dict(
         id='r5-static-own-image-counted',
@@ -1495,7 +1495,7 @@ MUTANTS = [
         old='            if other != key and same_edge_share(',
         new='            if same_edge_share(',
         behaviour='A curve is static when seen in the OTHER images (its own image does not count)',
-        tests=['test/test_static_curves.py', '-k', 'not refine and not cli'],
+        tests=['test/core/lines/test_static_curves.py', '-k', 'not refine and not cli'],
     ),
     dict(
         id='r5-static-search-exact-pixel',
@@ -1504,7 +1504,7 @@ MUTANTS = [
         new='SEARCH_PX = 0\n',
         behaviour="A curve's edge is looked for within a pixel across it in the other images (detector noise of "
                   'one edge: well under a pixel)',
-        tests=['test/test_static_curves.py',
+        tests=['test/core/lines/test_static_curves.py',
                '-k',
                'not cli'],
     ),
@@ -1515,8 +1515,8 @@ MUTANTS = [
         new='    result = refine_camera(spec, list(curves), width, height,',
         behaviour="refine_from_images and the node's refine leave the curves that stay put (the vehicle's body) "
                   'out of every fit',
-        tests=['test/test_static_curves.py::test_refine_leaves_out_the_vehicle_body_seen_in_every_frame',
-               'test/test_online_refinement.py::test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_evidence'],
+        tests=['test/core/lines/test_static_curves.py::test_refine_leaves_out_the_vehicle_body_seen_in_every_frame',
+               'test/core/ros_data/test_online_refinement.py::test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_evidence'],
     ),
     dict(
         id='r5-refine-first-region-for-every-image',
@@ -1524,7 +1524,7 @@ MUTANTS = [
         old='region=regions[index], **detect_options)',
         new='region=regions[0], **detect_options)',
         behaviour="Each image is searched inside its OWN usable region (regions[i] for images[i])",
-        tests=['test/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
+        tests=['test/core/lines/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
     ),
     dict(
         id='r5-refine-circle-measured-in-every-image',
@@ -1532,7 +1532,7 @@ MUTANTS = [
         old="    measured_in = sum(r.circle is not None for r in regions)\n    solution = solve_zero_shot(spec, 'auto')",
         new="    measured_in = len(regions)\n    solution = solve_zero_shot(spec, 'auto')",
         behaviour='Refinement.circle_measured_in: how many of the images showed the image circle',
-        tests=['test/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
+        tests=['test/core/lines/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
     ),
     dict(
         id='r5-circle-term-diameter-not-scaled',
@@ -1541,7 +1541,7 @@ MUTANTS = [
         new='        given = spec.circle_diameter',
         behaviour="Binned images: the spec's circle diameter scales to the images' width before it is compared "
                   'with the measured circle (the circle FOV stays evidence)',
-        tests=['test/test_image_region.py::test_the_measured_circle_states_the_circle_fov_of_binned_images_when_the_spec_agrees'],
+        tests=['test/core/lines/test_image_region.py::test_the_measured_circle_states_the_circle_fov_of_binned_images_when_the_spec_agrees'],
     ),
     dict(
         id='r5-circle-term-agreement-inverted',
@@ -1550,7 +1550,7 @@ MUTANTS = [
         new='        if circle_diameter_agrees(given, circle):',
         behaviour="The measured circle states the circle FOV only when the spec's diameter agrees with it "
                   '(else only the principal point)',
-        tests=['test/test_image_region.py::test_the_measured_circle_states_the_circle_fov_of_binned_images_when_the_spec_agrees'],
+        tests=['test/core/lines/test_image_region.py::test_the_measured_circle_states_the_circle_fov_of_binned_images_when_the_spec_agrees'],
     ),
     dict(
         id='r5-refine-circle-not-evidence',
@@ -1558,7 +1558,7 @@ MUTANTS = [
         old='    circle = None if image_circle is None else circle_term(spec, image_circle, width, fov_tolerance_deg, zs)',
         new='    circle = None',
         behaviour='The measured image circle is evidence of the principal point (its centre) in the fit',
-        tests=['test/test_image_region.py::test_the_measured_circle_is_evidence_of_the_principal_point'],
+        tests=['test/core/lines/test_image_region.py::test_the_measured_circle_is_evidence_of_the_principal_point'],
     ),
     dict(
         id='r5-reach-to-corner-not-circle',
@@ -1567,8 +1567,8 @@ MUTANTS = [
         new='    if circle_radius is not None and 0 < circle_radius > limit:',
         behaviour="The lines' reach is measured to the image circle when it is nearer than the corners (nothing is "
                   'imaged beyond it)',
-        tests=['test/test_image_region.py::test_the_reach_of_the_lines_is_measured_to_the_image_circle_at_any_image_size',
-               'test/test_image_region.py::test_refining_a_circular_render_with_nuisances_is_not_worse_than_zero_shot'],
+        tests=['test/core/lines/test_image_region.py::test_the_reach_of_the_lines_is_measured_to_the_image_circle_at_any_image_size',
+               'test/core/lines/test_image_region.py::test_refining_a_circular_render_with_nuisances_is_not_worse_than_zero_shot'],
     ),
     dict(
         id='r5-reach-spec-circle-not-scaled',
@@ -1577,7 +1577,7 @@ MUTANTS = [
         new='        circle_limit = spec.circle_diameter / 2.0',
         behaviour="Binned images without a measured circle: the reach is measured to the spec's circle scaled to "
                   "the images' size",
-        tests=['test/test_image_region.py::test_the_reach_of_the_lines_is_measured_to_the_image_circle_at_any_image_size'],
+        tests=['test/core/lines/test_image_region.py::test_the_reach_of_the_lines_is_measured_to_the_image_circle_at_any_image_size'],
     ),
     dict(
         id='r5-circle-term-cy-against-cx',
@@ -1585,7 +1585,7 @@ MUTANTS = [
         old='        r = [camera.cx - self.centre[0], camera.cy - self.centre[1]]',
         new='        r = [camera.cx - self.centre[0], camera.cy - self.centre[0]]',
         behaviour="ImageCircleTerm: the measured circle's centre (cx, cy) is the principal point",
-        tests=['test/test_image_region.py::test_image_circle_term_states_the_principal_point_and_the_circle_fov'],
+        tests=['test/core/lines/test_image_region.py::test_image_circle_term_states_the_principal_point_and_the_circle_fov'],
     ),
     dict(
         id='r5-circle-term-radius-sigma-ignored',
@@ -1593,7 +1593,7 @@ MUTANTS = [
         old='            sigma.append(math.hypot(tolerance_deg, per_px * radius_sigma_px))',
         new='            sigma.append(tolerance_deg)',
         behaviour="ImageCircleTerm: the circle FOV's sigma is the tolerance widened by the radius's uncertainty",
-        tests=['test/test_image_region.py::test_image_circle_term_states_the_principal_point_and_the_circle_fov'],
+        tests=['test/core/lines/test_image_region.py::test_image_circle_term_states_the_principal_point_and_the_circle_fov'],
     ),
     dict(
         id='r5-worker-static-not-left-out',
@@ -1602,7 +1602,7 @@ MUTANTS = [
         new='        result = refine_camera(self.spec, every, width, height,',
         behaviour="The node's refine leaves out what stays put from frame to frame (the robot's own body), as "
                   'refine does',
-        tests=['test/test_online_refinement.py::test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_evidence'],
+        tests=['test/core/ros_data/test_online_refinement.py::test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_evidence'],
     ),
     dict(
         id='r5-worker-circle-not-evidence',
@@ -1610,7 +1610,7 @@ MUTANTS = [
         old='                                    image_circle=combine_circles([f.circle for f in frames]))',
         new='                                    image_circle=None)',
         behaviour="The node's refine takes the image circle seen in the frames as evidence, as refine does",
-        tests=['test/test_online_refinement.py::test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_evidence'],
+        tests=['test/core/ros_data/test_online_refinement.py::test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_evidence'],
     ),
     dict(
         id='r5-stop-waits-on-a-starved-worker',
@@ -1620,8 +1620,8 @@ MUTANTS = [
         new="        self._close_input()\n        closer = threading.Thread(target=lambda: None)\n        closer.start()",
         behaviour='Stopping the refiner kills, after the timeout, a worker too starved of CPU to read its input '
                   '(instead of waiting on the pipe)',
-        tests=['test/test_online_refinement.py::test_stop_kills_a_worker_that_does_not_read_its_input',
-               'test/test_online_refinement.py::test_stop_returns_at_once_while_the_worker_is_busy'],
+        tests=['test/core/ros_data/test_online_refinement.py::test_stop_kills_a_worker_that_does_not_read_its_input',
+               'test/core/ros_data/test_online_refinement.py::test_stop_returns_at_once_while_the_worker_is_busy'],
     ),
     dict(
         id='r5-cli-measured-radius-as-diameter',
@@ -1630,7 +1630,7 @@ MUTANTS = [
         new='        args.circle_diameter = round(circle.radius, 2)',
         behaviour='refine --circle-fov without --circle-diameter: the diameter measured in the images is the '
                   "spec's circle diameter",
-        tests=['test/test_refine_cli.py::test_circle_fov_alone_measures_the_circle_diameter_in_the_images'],
+        tests=['test/cli/test_cli_refine.py::test_circle_fov_alone_measures_the_circle_diameter_in_the_images'],
     ),
     dict(
         id='r5-cli-disagreement-warning-inverted',
@@ -1638,7 +1638,7 @@ MUTANTS = [
         old='            and not circle_diameter_agrees(spec.circle_diameter, circle):',
         new='            and circle_diameter_agrees(spec.circle_diameter, circle):',
         behaviour='A --circle-diameter that disagrees with the image circle measured in the images is warned about',
-        tests=['test/test_refine_cli.py::test_a_given_circle_diameter_that_disagrees_with_the_images_is_warned_about'],
+        tests=['test/cli/test_cli_refine.py::test_a_given_circle_diameter_that_disagrees_with_the_images_is_warned_about'],
     ),
     dict(
         id='r5-cli-left-out-line-when-none',
@@ -1646,7 +1646,7 @@ MUTANTS = [
         old='        if result.static_curves:',
         new='        if result.static_curves is not None:',
         behaviour="refine's text says 'left out N curves' only when it left some out",
-        tests=['test/test_refine_cli.py::test_refine_text_output_says_what_it_decided'],
+        tests=['test/cli/test_cli_refine.py::test_refine_text_output_says_what_it_decided'],
     ),
     dict(
         id='r5-cli-json-static-counts-every-curve',
@@ -1654,7 +1654,7 @@ MUTANTS = [
         old="    summary['refinement']['curves_static'] = len(result.static_curves)",
         new="    summary['refinement']['curves_static'] = len(result.curves)",
         behaviour="refine --json: curves_static is the number of curves left out for staying put",
-        tests=['test/test_static_curves.py::test_the_cli_says_what_it_left_out_and_draws_it'],
+        tests=['test/core/lines/test_static_curves.py::test_the_cli_says_what_it_left_out_and_draws_it'],
     ),
     dict(
         id='r5-cli-debug-static-not-drawn',
@@ -1662,7 +1662,7 @@ MUTANTS = [
         old='                            static=_scaled(left_out, pw / w))',
         new='                            )',
         behaviour='--debug-image draws the curves left out for staying put in orange',
-        tests=['test/test_static_curves.py::test_the_cli_says_what_it_left_out_and_draws_it'],
+        tests=['test/core/lines/test_static_curves.py::test_the_cli_says_what_it_left_out_and_draws_it'],
     ),
     # --- round 6: edge points found once, Jacobian columns in threads, the faster KB inverse ----
     dict(
@@ -1672,7 +1672,7 @@ MUTANTS = [
         new='            pass',
         behaviour='Outside a jacobian_threads block Problem.jacobian computes in the calling thread again '
                   '(the block\'s pool, shut down, is not used after it)',
-        tests=['test/test_estimation.py::test_jacobian_in_threads_is_the_jacobian_in_one_thread'],
+        tests=['test/core/estimation/test_refine.py::test_jacobian_in_threads_is_the_jacobian_in_one_thread'],
     ),
     dict(
         id='r6-jacobian-columns-strided',
@@ -1681,7 +1681,7 @@ MUTANTS = [
         new='pool.map(column, [*range(0, x.size, 2), *range(1, x.size, 2)]) if pool',
         behaviour='The Jacobian computed in several threads is the same numbers, column for column, as in one '
                   '(a result does not depend on the machine\'s cores)',
-        tests=['test/test_estimation.py::test_jacobian_in_threads_is_the_jacobian_in_one_thread'],
+        tests=['test/core/estimation/test_refine.py::test_jacobian_in_threads_is_the_jacobian_in_one_thread'],
     ),
     dict(
         id='r6-jacobian-columns-through-the-cache',
@@ -1690,7 +1690,7 @@ MUTANTS = [
         new='            return (self.whitened(xp, robust) - r0) / steps[j]',
         behaviour='Inside jacobian_threads the columns are evaluated in the pool\'s threads only, the residual '
                   'cache left at the solver\'s point',
-        tests=['test/test_estimation.py::test_jacobian_in_threads_is_the_jacobian_in_one_thread'],
+        tests=['test/core/estimation/test_refine.py::test_jacobian_in_threads_is_the_jacobian_in_one_thread'],
     ),
     dict(
         id='r6-jacobian-pool-of-one',
@@ -1698,7 +1698,7 @@ MUTANTS = [
         old='ThreadPoolExecutor(max_workers=int(threads)',
         new='ThreadPoolExecutor(max_workers=1',
         behaviour='jacobian_threads(n): n columns are computed at the same time (refine uses the machine\'s cores)',
-        tests=['test/test_estimation.py::test_jacobian_threads_computes_that_many_columns_at_once'],
+        tests=['test/core/estimation/test_refine.py::test_jacobian_threads_computes_that_many_columns_at_once'],
     ),
     dict(
         id='r6-jacobian-pool-not-shut-down',
@@ -1706,7 +1706,7 @@ MUTANTS = [
         old="    with ThreadPoolExecutor(max_workers=int(threads), thread_name_prefix='jacobian') as pool:",
         new="    pool = ThreadPoolExecutor(max_workers=int(threads), thread_name_prefix='jacobian')\n    if True:",
         behaviour='The threads of a jacobian_threads block end with it (a long-running caller is left none)',
-        tests=['test/test_estimation.py::test_jacobian_threads_computes_that_many_columns_at_once'],
+        tests=['test/core/estimation/test_refine.py::test_jacobian_threads_computes_that_many_columns_at_once'],
     ),
     dict(
         id='r6-residual-cache-ignores-terms',
@@ -1715,7 +1715,7 @@ MUTANTS = [
         new='        key = (robust,)',
         behaviour='A term added to a problem counts at once, even at the point last evaluated (the cache is '
                   'keyed on the terms)',
-        tests=['test/test_estimation.py::test_covariance_is_none_when_the_evidence_does_not_determine_the_camera'],
+        tests=['test/core/estimation/test_refine.py::test_covariance_is_none_when_the_evidence_does_not_determine_the_camera'],
     ),
     dict(
         id='r6-refine-fits-in-one-thread',
@@ -1724,7 +1724,7 @@ MUTANTS = [
         new='        with jacobian_threads(1):',
         behaviour='refine_from_images(workers=n) (zeroshot-calib refine: the machine\'s cores) computes its fits\' '
                   'Jacobians in worker threads too, not only the detection',
-        tests=['test/test_estimation.py::test_refine_from_images_fits_in_its_workers'],
+        tests=['test/core/estimation/test_refine.py::test_refine_from_images_fits_in_its_workers'],
     ),
     dict(
         id='r6-refine-edges-of-the-first-image',
@@ -1732,8 +1732,8 @@ MUTANTS = [
         old='edges[index] = find_edges(image, camera,',
         new='edges[index] = find_edges(images[0], camera,',
         behaviour="refine_from_images: each image's curves are found in that image",
-        tests=['test/test_estimation.py::test_refine_from_images_detects_each_image_with_the_options_given',
-               'test/test_static_curves.py::test_refine_leaves_out_the_vehicle_body_seen_in_every_frame'],
+        tests=['test/core/estimation/test_refine.py::test_refine_from_images_detects_each_image_with_the_options_given',
+               'test/core/lines/test_static_curves.py::test_refine_leaves_out_the_vehicle_body_seen_in_every_frame'],
     ),
     dict(
         id='r6-refine-detect-options-dropped',
@@ -1742,7 +1742,7 @@ MUTANTS = [
         new='find_edges(image, camera, views=views, region=regions[index])',
         behaviour="refine_from_images(**detect_options): the detection options given (max_curves, tolerance_px, "
                   "...) are the detector's",
-        tests=['test/test_estimation.py::test_refine_from_images_detects_each_image_with_the_options_given'],
+        tests=['test/core/estimation/test_refine.py::test_refine_from_images_detects_each_image_with_the_options_given'],
     ),
     dict(
         id='r6-refine-region-ignored',
@@ -1750,7 +1750,7 @@ MUTANTS = [
         old='find_edges(image, camera, views=views, region=regions[index], **detect_options)',
         new='find_edges(image, camera, views=views, **detect_options)',
         behaviour="refine_from_images(regions=...): each image is searched inside its own region only",
-        tests=['test/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
+        tests=['test/core/lines/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
     ),
     dict(
         id='r6-refine-looks-again-each-round',
@@ -1759,7 +1759,7 @@ MUTANTS = [
         new='            if True:',
         behaviour='refine_from_images looks for edge points once per image, with the zero-shot camera; later '
                   'rounds make curves of the same points',
-        tests=['test/test_estimation.py::test_refine_from_images_makes_curves_again_under_the_refined_camera'],
+        tests=['test/core/estimation/test_refine.py::test_refine_from_images_makes_curves_again_under_the_refined_camera'],
     ),
     dict(
         id='r6-refine-second-round-under-zero-shot',
@@ -1768,7 +1768,7 @@ MUTANTS = [
         new='            return curves_from_edges(edges[index], zero_shot_camera(spec, width, height, solution), '
             'image_id=index)',
         behaviour="refine_from_images' second round makes its curves under the camera the first fit gave",
-        tests=['test/test_estimation.py::test_refine_from_images_makes_curves_again_under_the_refined_camera'],
+        tests=['test/core/estimation/test_refine.py::test_refine_from_images_makes_curves_again_under_the_refined_camera'],
     ),
     dict(
         id='r6-kb-inverse-last-element-skipped',
@@ -1777,7 +1777,7 @@ MUTANTS = [
         new='        active = np.arange(flat_theta.size - 1)',
         behaviour='KannalaBrandtCamera.theta_from_theta_d inverts every element (the same numbers as 60 '
                   'bracketed Newton iterations)',
-        tests=['test/test_camera_models.py::test_kannala_brandt_inverse_stops_where_more_iterations_change_nothing'],
+        tests=['test/core/lens/test_models.py::test_kannala_brandt_inverse_stops_where_more_iterations_change_nothing'],
     ),
     dict(
         id='r6-kb-inverse-active-renumbered',
@@ -1786,7 +1786,7 @@ MUTANTS = [
         new='            active = np.flatnonzero(moving)',
         behaviour='KannalaBrandtCamera.theta_from_theta_d inverts every element (the same numbers as 60 '
                   'bracketed Newton iterations)',
-        tests=['test/test_camera_models.py::test_kannala_brandt_inverse_stops_where_more_iterations_change_nothing'],
+        tests=['test/core/lens/test_models.py::test_kannala_brandt_inverse_stops_where_more_iterations_change_nothing'],
     ),
     dict(
         id='r6-kb-inverse-scalar-not-written-back',
@@ -1794,7 +1794,7 @@ MUTANTS = [
         old='        theta = flat_theta.reshape(theta_d.shape)\n',
         new='',
         behaviour='KannalaBrandtCamera.theta_from_theta_d of a scalar is the converged inverse, as of an array',
-        tests=['test/test_camera_models.py::test_kannala_brandt_inverse_stops_where_more_iterations_change_nothing'],
+        tests=['test/core/lens/test_models.py::test_kannala_brandt_inverse_stops_where_more_iterations_change_nothing'],
     ),
     dict(
         id='r6-kb-inverse-one-iteration-short',
@@ -1802,7 +1802,7 @@ MUTANTS = [
         old='        for _ in range(iterations):\n            if not active.size:',
         new='        for _ in range(iterations - 1):\n            if not active.size:',
         behaviour='KannalaBrandtCamera.theta_from_theta_d: the same numbers as 60 bracketed Newton iterations',
-        tests=['test/test_camera_models.py::test_kannala_brandt_inverse_stops_where_more_iterations_change_nothing'],
+        tests=['test/core/lens/test_models.py::test_kannala_brandt_inverse_stops_where_more_iterations_change_nothing'],
     ),
     dict(
         id='r6-curves-from-edges-size-unchecked',
@@ -1810,7 +1810,7 @@ MUTANTS = [
         old='    if (camera.width, camera.height) != tuple(edges.image_size):\n        raise',
         new='    if False:\n        raise',
         behaviour="curves_from_edges refuses a camera of another image size than the edge points', in one line",
-        tests=['test/test_line_detection.py::test_detect_curves_is_find_edges_then_curves_from_edges'],
+        tests=['test/core/lines/test_detect.py::test_detect_curves_is_find_edges_then_curves_from_edges'],
     ),
     dict(
         id='r6-detect-curves-mask-dropped',
@@ -1818,7 +1818,7 @@ MUTANTS = [
         old='    edges = find_edges(image, camera, views=views, mask=mask, region=region, **options)',
         new='    edges = find_edges(image, camera, views=views, region=region, **options)',
         behaviour='detect_curves(mask=...): no point outside the mask is used',
-        tests=['test/test_line_detection.py::test_inputs'],
+        tests=['test/core/lines/test_detect.py::test_inputs'],
     ),
     dict(
         id='r6-detect-curves-image-id-dropped',
@@ -1826,7 +1826,7 @@ MUTANTS = [
         old='    return curves_from_edges(edges, camera, image_id)',
         new='    return curves_from_edges(edges, camera)',
         behaviour="detect_curves(image_id=...): every curve says which image it is of",
-        tests=['test/test_line_detection.py::test_detect_curves_is_find_edges_then_curves_from_edges'],
+        tests=['test/core/lines/test_detect.py::test_detect_curves_is_find_edges_then_curves_from_edges'],
     ),
     dict(
         id='r6-curves-from-edges-max-curves-ignored',
@@ -1834,7 +1834,7 @@ MUTANTS = [
         old="    return curves[:opts['max_curves']]",
         new='    return curves',
         behaviour='max_curves keeps the longest curves only',
-        tests=['test/test_line_detection.py::test_max_curves_keeps_the_longest'],
+        tests=['test/core/lines/test_detect.py::test_max_curves_keeps_the_longest'],
     ),
     dict(
         id='r6-find-edges-blank-image-sizeless',
@@ -1843,8 +1843,8 @@ MUTANTS = [
         new='    if not usable.any() or float(grey.std()) < 1.0:\n        return EdgePoints((0, 0), [], opts)',
         behaviour='Images without lines (blank, or no usable region) give no curves and keep zero-shot, without '
                   'an error',
-        tests=['test/test_estimation.py::test_images_without_lines_keep_zero_shot',
-               'test/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
+        tests=['test/core/estimation/test_refine.py::test_images_without_lines_keep_zero_shot',
+               'test/core/lines/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
     ),
     dict(
         id='r6-static-judged-in-the-wrong-image',
@@ -1853,7 +1853,7 @@ MUTANTS = [
         new='        key = ids[j]\n',
         behaviour='Every curve is judged static or not against its own image, whatever curves too short to judge '
                   'are listed before it',
-        tests=['test/test_static_curves.py::test_curves_too_short_to_judge_are_kept_and_change_no_other_verdict'],
+        tests=['test/core/lines/test_static_curves.py::test_curves_too_short_to_judge_are_kept_and_change_no_other_verdict'],
     ),
     dict(
         id='r6-static-verdict-on-the-wrong-curve',
@@ -1861,7 +1861,7 @@ MUTANTS = [
         old='                found_in[i] += 1',
         new='                found_in[j] += 1',
         behaviour='Curves too short to judge are kept and change no other curve\'s verdict',
-        tests=['test/test_static_curves.py::test_curves_too_short_to_judge_are_kept_and_change_no_other_verdict'],
+        tests=['test/core/lines/test_static_curves.py::test_curves_too_short_to_judge_are_kept_and_change_no_other_verdict'],
     ),
     dict(
         id='r6-static-only-short-curves-crash',
@@ -1869,7 +1869,7 @@ MUTANTS = [
         old='    if not usable:\n        return static\n',
         new='',
         behaviour='static_curves of curves all too short to judge keeps them all (no error)',
-        tests=['test/test_static_curves.py::test_curves_too_short_to_judge_are_kept_and_change_no_other_verdict'],
+        tests=['test/core/lines/test_static_curves.py::test_curves_too_short_to_judge_are_kept_and_change_no_other_verdict'],
     ),
     # --- what the CLI says besides the numbers (docs/cli_output.md) ------------------------------
     dict(
@@ -1878,7 +1878,7 @@ MUTANTS = [
         old='        print(refused[1], file=sys.stderr, flush=True)\n        return EXIT_NOT_ADOPTED',
         new='        print(refused[1], file=sys.stderr, flush=True)\n        return 0',
         behaviour='refine not adopted: exit status 3 (ran fine, the zero-shot camera printed and written)',
-        tests=['test/test_refine_cli.py::test_a_refused_refinement_says_so_in_the_file_on_stderr_and_in_its_exit_status'],
+        tests=['test/cli/test_cli_refine.py::test_a_refused_refinement_says_so_in_the_file_on_stderr_and_in_its_exit_status'],
     ),
     dict(
         id='cli-refine-refused-file-without-comment',
@@ -1886,7 +1886,7 @@ MUTANTS = [
         old="        _save_calibration(calibration, args.yaml, [refused[0]] if refused else ())\n    written = [",
         new="        _save_calibration(calibration, args.yaml)\n    written = [",
         behaviour='refine not adopted: the file written says in a # comment that it holds the zero-shot camera',
-        tests=['test/test_refine_cli.py::test_a_refused_refinement_says_so_in_the_file_on_stderr_and_in_its_exit_status'],
+        tests=['test/cli/test_cli_refine.py::test_a_refused_refinement_says_so_in_the_file_on_stderr_and_in_its_exit_status'],
     ),
     dict(
         id='cli-calibrate-not-adopted-exits-0',
@@ -1894,8 +1894,8 @@ MUTANTS = [
         old='        status = EXIT_NOT_ADOPTED',
         new='        status = 0',
         behaviour='calibrate, board fit not adopted: exit status 3',
-        tests=['test/test_cli.py::test_calibrate_says_when_the_gate_keeps_zero_shot_and_writes_that_camera',
-               'test/test_calibrate_checks.py::test_a_board_fit_not_adopted_is_said_in_an_ini_file_its_readers_skip'],
+        tests=['test/cli/test_cli.py::test_calibrate_says_when_the_gate_keeps_zero_shot_and_writes_that_camera',
+               'test/cli/test_cli_calibrate_checks.py::test_a_board_fit_not_adopted_is_said_in_an_ini_file_its_readers_skip'],
     ),
     dict(
         id='cli-calibrate-P-centred-on-edge-mean',
@@ -1904,7 +1904,7 @@ MUTANTS = [
         new='',
         behaviour="calibrate's P has K's principal point (as ROS camera_calibration writes a fisheye's): the scene "
                   'stays centred',
-        tests=['test/test_calibrate_checks.py', '-k', 'P_is_centred or P_of_a_synthetic or balance_keeps'],
+        tests=['test/cli/test_cli_calibrate_checks.py', '-k', 'P_is_centred or P_of_a_synthetic or balance_keeps'],
     ),
     dict(
         id='pp-camera-matrix-balance-inverted',
@@ -1912,7 +1912,7 @@ MUTANTS = [
         old='    f = (balance * min(focals) + (1.0 - balance) * max(focals)) / fov_scale',
         new='    f = (balance * max(focals) + (1.0 - balance) * min(focals)) / fov_scale',
         behaviour="calibrate's P: balance 0 leaves no black border at the edge midpoints, 1 keeps them all",
-        tests=['test/test_rectify.py', '-k', 'principal_point'],
+        tests=['test/core/ros_data/test_rectify.py', '-k', 'principal_point'],
     ),
     dict(
         id='stand-in-note-missing',
@@ -1920,7 +1920,7 @@ MUTANTS = [
         old="        + (f' ({note})' if note else ''),",
         new=",",
         behaviour='D [0, 0, 0, 1e-20]: the D line says the 1e-20 stands for 0 and why',
-        tests=['test/test_cli_output.py::test_the_stand_in_coefficient_is_explained_on_the_D_line_and_in_the_file'],
+        tests=['test/cli/test_cli_output.py::test_the_stand_in_coefficient_is_explained_on_the_D_line_and_in_the_file'],
     ),
     dict(
         id='cli-progress-shown-with-json',
@@ -1928,6 +1928,6 @@ MUTANTS = [
         old='    if args.progress or (not args.json and _is_terminal(sys.stderr)):',
         new='    if args.progress or _is_terminal(sys.stderr):',
         behaviour='refine / calibrate / evaluate: a progress line on a terminal, silent with --json',
-        tests=['test/test_cli_output.py', 'test/test_refine_cli.py', '-k', 'progress'],
+        tests=['test/cli/test_cli_output.py', 'test/cli/test_cli_refine.py', '-k', 'progress'],
     ),
 ]

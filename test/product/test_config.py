@@ -11,7 +11,7 @@ from paper_table2 import load_table2
 from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
 from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 CONFIG = REPO / 'config'
 LAUNCH_FILE = REPO / 'launch' / 'zeroshot_calib.launch.py'
 BRINGUP_FILE = REPO / 'launch' / 'usb_cam_bringup.launch.py'

@@ -1,11 +1,11 @@
 """docs/performance.md, "Cost per frame": its figures are those of the results files the
 benchmark wrote (benchmarks/rectify_throughput.py; the commands the section gives are the ones
 those files record), each within half a unit of its last printed digit, and the sentences that
-compare them say what the files say. (Its behaviour claims: test/test_node_lazy.py.)"""
+compare them say what the files say. (Its behaviour claims: test/ros/test_node_lazy.py.)"""
 import re
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 RESULTS = REPO / 'benchmarks' / 'results'
 DOC = (REPO / 'docs' / 'performance.md').read_text()
 

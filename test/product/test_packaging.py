@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 PKG = 'zeroshot_calib_ros'
 INSTALL = ROOT / 'install' / PKG
 LIBEXEC = INSTALL / 'lib' / PKG

@@ -364,7 +364,7 @@ CHECKED = {
     # run by test_cli_output.py (the exit statuses of --help; FC_eq.d.'s P on the shared images)
     'zeroshot-calib --help',
     "zeroshot-calib calibrate '../shared/data/ros_fisheye_800x503/left-*.png' --yaml camera.yaml",
-    # run by test_report.py::test_the_concrete_commands_of_docs_report_md_run_and_write_their_pictures
+    # run by test_calibration_report.py::test_the_concrete_commands_of_docs_report_md_run_and_write_their_pictures
     'zeroshot-calib solve --width 800 --height 503 --hfov 180.81 --vfov 103.52 --report report_solve.png',
     SAMPLE_COMMAND,
     ONE_FOV_COMMAND,

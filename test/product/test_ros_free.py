@@ -5,7 +5,7 @@ import textwrap
 
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 ROS_MODULES = ['rclpy', 'rcl_interfaces', 'sensor_msgs', 'std_msgs', 'builtin_interfaces',
                'ament_index_python', 'rosidl_runtime_py', 'rpyutils', 'launch', 'launch_ros']
 
@@ -55,7 +55,7 @@ def test_every_test_module_that_imports_ros_is_left_out_of_the_ros_free_run():
     collection error (seen on a clean clone: diagnostic_msgs, a new node test)."""
     from conftest import NEEDS_ROS
     needs = []
-    for path in sorted((REPO / 'test').glob('test_*.py')):
+    for path in sorted((REPO / 'test').rglob('test_*.py')):
         roots = _top_level_imports(path)
         if any(root in ROS_MODULES or root == 'ros_peer' or root.endswith(('_msgs', '_srvs', '_interfaces'))
                for root in roots):

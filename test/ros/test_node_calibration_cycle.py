@@ -251,7 +251,7 @@ def test_image_rect_honours_the_rotation_of_a_set_camera_info_calibration(peer, 
     """set_camera_info with a 5-degree stereo R (equidistant): image_rect is what OpenCV's maps
     for K, D, R, P make of the frame (image_proc's), within 2 grey levels on a smooth texture."""
     import cv2
-    from test_rectification_rotation import calibration, opencv_maps, smooth_image
+    from test_rectify_rotation import calibration, opencv_maps, smooth_image
     from zeroshot_calib_ros.ros.messages import fill_camera_info
     start_node('--ros-args', *SPEC_720, '-p', 'rectify:=true')
     rects = peer.collect(Image, 'image_rect', RELIABLE)

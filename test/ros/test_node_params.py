@@ -1,7 +1,8 @@
 """The node's parameters and its refiner seen from another process: values set to what they
 already are change nothing, rejections are whole, bounded and say why, unknown names are named,
 start-up errors and Ctrl-C end cleanly; refine can be toggled while streaming without losing
-frames, a dead worker is reported and restarted, and a restarted refiner keeps the 0.7x rule."""
+frames, a dead worker is reported and restarted, and a restarted refiner keeps the 0.7x rule.
+The parameter services and descriptors are ros/parameter_service.py's."""
 import os
 import re
 import signal

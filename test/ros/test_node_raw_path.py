@@ -201,7 +201,7 @@ def test_the_benchmarks_remap_relay_publishes_the_nodes_camera_info_then_the_rec
     import sys
     from pathlib import Path
     from types import SimpleNamespace
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'benchmarks'))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'benchmarks'))
     import bench_common
     import relay_node
     from zeroshot_calib_ros.core.ros_data.cdr_image import SerializedImage

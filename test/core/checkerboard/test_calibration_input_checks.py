@@ -26,7 +26,7 @@ from zeroshot_calib_ros.core.checkerboard.corners import (Board, CornersError, C
                                              detect_corners)
 from zeroshot_calib_ros.core.checkerboard.evaluation import evaluate, evaluation_to_dict, format_tables
 
-DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'ros_fisheye_800x503'
+DATA = Path(__file__).resolve().parents[3].parent / 'shared' / 'data' / 'ros_fisheye_800x503'
 W, H = TRUE.width, TRUE.height
 
 

@@ -25,7 +25,7 @@ from zeroshot_calib_ros.core.checkerboard.evaluation import (evaluate, evaluatio
                                                 reprojection_error)
 from zeroshot_calib_ros.core.checkerboard.pose import board_poses, rodrigues
 
-DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'ros_fisheye_800x503'
+DATA = Path(__file__).resolve().parents[3].parent / 'shared' / 'data' / 'ros_fisheye_800x503'
 
 
 def test_rodrigues_is_opencvs():

@@ -27,7 +27,7 @@ from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
 W, H = 800, 500
 TRUTH = KannalaBrandtCamera(303.564, 303.564, 406.0, 244.0, W, H, [-0.09017, 0.02730, -0.00572, 0.00053])
 BOARD = Board(8, 6, 0.05)
-SHARED = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'ros_fisheye_800x503'
+SHARED = Path(__file__).resolve().parents[4] / 'shared' / 'data' / 'ros_fisheye_800x503'
 
 
 def board_views(camera, n, seed, distance=(0.22, 0.4), spread=0.25, tilt_deg=(20.0, 50.0), noise=0.2):
@@ -204,7 +204,7 @@ def test_shared_set_single_shot_with_the_spec_is_never_worse_than_zero_shot():
     evidence is not worse than zero-shot alone (Table 3's ZS, no corner) by more than 0.2 px of
     eq.-20 RMS over all images, and beats the spec as a start on average by more than 1 px."""
     import sys
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'benchmarks'))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[3] / 'benchmarks'))
     from board_with_spec import shared_set
     from zeroshot_calib_ros.core.checkerboard.calibration import zero_shot_camera
     from zeroshot_calib_ros.core.checkerboard.evaluation import reprojection_error

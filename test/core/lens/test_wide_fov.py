@@ -20,7 +20,7 @@ from zeroshot_calib_ros.core.zeroshot.solver import PROJECTION_CHOICES
 from zeroshot_calib_ros.core.lens.wide_fov import WideFovCamera, fields_of_view_through_axis
 from zeroshot_calib_ros.core.zeroshot.wide_solver import WIDE_CHOICES, needs_wide_model
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 SHARED_DATA = Path(os.environ.get('ZEROSHOT_SHARED_DATA', REPO.parent / 'shared' / 'data'))
 """../shared/data, or the copy ZEROSHOT_SHARED_DATA names."""
 W, H = 1920, 1080

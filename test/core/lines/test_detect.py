@@ -22,7 +22,7 @@ from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.zeroshot.solver import solve_zero_shot
 from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
 
-REAL = os.path.join(os.path.dirname(__file__), '..', '..', 'shared', 'data', 'ros_fisheye_800x503')
+REAL = os.path.join(os.path.dirname(__file__), '..', '..', '..', '..', 'shared', 'data', 'ros_fisheye_800x503')
 
 # A 150-degree lens on a 1280x720 sensor, principal point 20 px right and 15 px up of the centre.
 KB = KannalaBrandtCamera(480.0, 480.0, 660.0, 345.0, 1280, 720, [0.02, -0.01, 0.003, -0.0005])

@@ -4,7 +4,8 @@ calibration is less certain, the verdict is written in its colour, the contact s
 panel per image showing that image; a bad --report path is one error line before any work.
 
 The pictures are found by what a user sees (the panel frames, the label bars, the colour map of
-the colour bar), with the layout constants of core/report (test/pictures.py).
+the colour bar), with the layout constants of core/report (test/pictures.py). Modules tested here:
+core/report/calibration_report.py, canvas.py, debug_sheet.py, synthetic.py (the solve report's preview).
 """
 import json
 import math
@@ -16,7 +17,7 @@ import pytest
 import pictures
 from cli_run import run_main
 from scenes import render
-from test_refine_cli import SPEC_FLAGS, TRUE
+from test_cli_refine import SPEC_FLAGS, TRUE
 from zeroshot_calib_ros.core.estimation.uncertainty import uncertainty_map, zero_shot_uncertainty
 from zeroshot_calib_ros.core.report import canvas, debug_sheet
 from zeroshot_calib_ros.core.zeroshot.solver import solve_zero_shot
@@ -327,7 +328,7 @@ def test_the_concrete_commands_of_docs_report_md_run_and_write_their_pictures(tm
     import re
     import shlex
     from pathlib import Path
-    text = (Path(__file__).resolve().parents[1] / 'docs' / 'report.md').read_text()
+    text = (Path(__file__).resolve().parents[3] / 'docs' / 'report.md').read_text()
     blocks = re.findall(r'```\n(.*?)```', text, re.S)
     commands = [line for block in blocks for line in block.splitlines() if line.startswith('zeroshot-calib ')]
     concrete = [c for c in commands if not re.search(r'\bIMG\b|\bH\b|\bV\b|images/', c)]

@@ -13,7 +13,7 @@ from zeroshot_calib_ros.core.ros_data.calibration_file import (DISTORTION_MODELS
                                                                CameraCalibration)
 from zeroshot_calib_ros.core.zeroshot.presets import get_preset, load_presets
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 K = [[880.0, 0.0, 955.0], [0.0, 880.0, 545.0], [0.0, 0.0, 1.0]]
 D = [0.05, -0.004, -0.001, 0.0002]
 P = [[700.0, 0.0, 955.0, 0.0], [0.0, 700.0, 545.0, 0.0], [0.0, 0.0, 1.0, 0.0]]

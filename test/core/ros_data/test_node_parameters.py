@@ -8,7 +8,7 @@ from zeroshot_calib_ros.core.ros_data.node_parameters import (PARAMETERS, change
                                                                unknown_parameter_warnings, usage_text, value_text)
 from zeroshot_calib_ros.core.zeroshot.spec import SpecError
 
-PACKAGE = Path(__file__).resolve().parents[1] / 'zeroshot_calib_ros'
+PACKAGE = Path(__file__).resolve().parents[3] / 'zeroshot_calib_ros'
 
 
 def test_a_change_is_a_change_only_when_a_value_differs():

@@ -344,7 +344,7 @@ def test_idle_remap_benchmark_sample_times_the_remap_after_every_kind_of_wait(ca
     at 1080p and 4K): a row per order and encoding with a time after each wait, in the header's order."""
     import sys
     from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'benchmarks'))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[3] / 'benchmarks'))
     import idle_remap
     idle_remap.main(['--sizes', '96x54', '--rounds', '2'])
     out = capsys.readouterr().out
@@ -363,7 +363,7 @@ def test_remap_kernels_benchmark_sample_reports_every_candidate_and_the_rule_in_
     gets (float maps and padding from 4.11, fixed point and no padding before)."""
     import sys
     from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'benchmarks'))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[3] / 'benchmarks'))
     import remap_kernels
     remap_kernels.main(['--sizes', '96x54', '--rounds', '2', '--paced-rounds', '1'])
     out = capsys.readouterr().out

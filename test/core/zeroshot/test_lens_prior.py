@@ -24,7 +24,7 @@ from zeroshot_calib_ros.core.zeroshot.lens_prior import LensPriorError, packaged
 from zeroshot_calib_ros.core.zeroshot.solver import solve_zero_shot
 from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 DATA = Path(os.environ.get('ZEROSHOT_SHARED_DATA', REPO.parent / 'shared' / 'data'))
 PROFILES = DATA / 'lens_profiles_dev.csv'
 needs_data = pytest.mark.skipif(not PROFILES.is_file(),

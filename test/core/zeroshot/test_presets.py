@@ -15,7 +15,7 @@ from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.zeroshot.presets import (PRESETS_FILE, PresetError, get_preset, get_preset_entry,
                                              load_presets, parse_presets)
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 PRESETS = load_presets()
 TABLE2_PRESETS = {  # Table 2 row -> preset (L6013R1 and L6013R2 are two units of one model)
     'C905': 'logitech_c905', 'C922': 'logitech_c922', 'Hero9(N)': 'gopro_hero9_narrow',

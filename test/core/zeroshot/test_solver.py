@@ -112,7 +112,7 @@ def test_exactly_undistorted_spec_gives_pinhole():
 
 def test_hfov_alone_is_perspective():
     """The paper's reading of one FOV (its C905 row), kept as lens_prior=False; by default the
-    lens shape comes from real lenses of that FOV (test/test_lens_prior.py)."""
+    lens shape comes from real lenses of that FOV (test/core/zeroshot/test_lens_prior.py)."""
     solution = solve_zero_shot(CameraSpec(1280, 720, hfov=63.1), lens_prior=False)
     assert solution.omega == 0 and solution.f == pytest.approx(1042.3, abs=0.05)
 
