@@ -1,9 +1,6 @@
 """The import rule of docs/architecture.md, enforced on the source: layers import only layers
 below them (or modules of their own layer), siblings never import each other, the core never
-imports ROS, and every module belongs to a layer (a new module must be placed in one). And the rule
-of "Where the tests are": the tests of zeroshot_calib_ros/<dir>/<module>.py are
-test/<dir>/test_<module>*.py (or the file of TESTED_THROUGH that covers it); tests of the product as
-a whole are in test/product/.
+imports ROS, and every module belongs to a layer (a new module must be placed in one).
 
     0 core/lens, core/atomic_file,    lens models, their ROS fits; writing files and reading them
       core/file_input                 bounded (and the version)
@@ -21,9 +18,7 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[2]
-PACKAGE = REPO / 'zeroshot_calib_ros'
-TESTS = REPO / 'test'
+PACKAGE = Path(__file__).resolve().parents[2] / 'zeroshot_calib_ros'
 LAYERS = {
     'core.lens': 0, 'core.atomic_file': 0, 'core.file_input': 0,
     'core.zeroshot': 1,
@@ -153,120 +148,84 @@ def test_the_rule_catches_an_upward_import(tmp_path, importer, imported, expecte
     assert len(found) == 1 and expected in found[0], found
 
 
-# Where the tests are (docs/architecture.md): the tests of zeroshot_calib_ros/<dir>/<module>.py are
-# test/<dir>/test_<module>.py and test/<dir>/test_<module>_<aspect>.py. A module without such a file
-# is tested through another module's tests: it is listed here with the file that covers it (which
-# must name it: import it, or mention its name or path) and why. Prefer a file the rule finds.
+# Where the tests are (docs/architecture.md): zeroshot_calib_ros/<dir>/<module>.py is tested in
+# test/<dir>/test_<module>*.py, or, listed here, by the file that covers it (which names it) and why.
 TESTED_THROUGH = {
-    'core/atomic_file.py': ('test/core/ros_data/test_calibration_file_save.py',
-                            'its callers: calibration files saved all or nothing, symlinks, modes'),
-    'core/file_input.py': ('test/cli/test_cli_files.py', 'what the CLI reads: FIFOs, size caps, pixel budgets'),
-    'core/checkerboard/corner_term.py': ('test/core/estimation/test_board_fit.py', 'the evidence term of the board fit'),
-    'core/checkerboard/pose.py': ('test/core/checkerboard/test_evaluation.py', 'board poses of the paper\'s protocol'),
-    'core/estimation/fit.py': ('test/core/estimation/test_refine.py', 'the line fit refine runs'),
-    'core/estimation/parameters.py': ('test/core/estimation/test_refine.py', 'the layouts of refine\'s fit'),
-    'core/estimation/problem.py': ('test/core/estimation/test_refine.py', 'the robust loss, the threaded Jacobian'),
-    'core/estimation/terms.py': ('test/core/estimation/test_refine.py', 'the FOV terms and priors of refine'),
-    'core/estimation/uncertainty.py': ('test/core/estimation/test_refine.py', 'the covariance and error bar of refine'),
-    'core/lines/straightness.py': ('test/core/estimation/test_refine.py', 'the straightness residual refine fits'),
-    'core/lens/fitting.py': ('test/core/lens/test_models.py', 'the ROS models\' fits, with the models'),
-    'core/lens/projections.py': ('test/core/zeroshot/test_solver.py', 'the four laws, through the paper\'s Table 2'),
-    'core/report/canvas.py': ('test/core/report/test_calibration_report.py', 'the pictures it draws'),
+    'core/atomic_file.py': ('test/core/ros_data/test_calibration_file_save.py', 'calibration files saved'),
+    'core/file_input.py': ('test/cli/test_cli_files.py', 'every file the CLI reads'),
+    'core/checkerboard/corner_term.py': ('test/core/estimation/test_board_fit.py', 'the board fit\'s term'),
+    'core/checkerboard/pose.py': ('test/core/checkerboard/test_evaluation.py', 'the protocol\'s poses'),
+    'core/estimation/fit.py': ('test/core/estimation/test_refine.py', 'the fit refine runs'),
+    'core/estimation/parameters.py': ('test/core/estimation/test_refine.py', 'refine\'s layouts'),
+    'core/estimation/problem.py': ('test/core/estimation/test_refine.py', 'the loss, the Jacobian'),
+    'core/estimation/terms.py': ('test/core/estimation/test_refine.py', 'refine\'s FOV terms, priors'),
+    'core/estimation/uncertainty.py': ('test/core/estimation/test_refine.py', 'refine\'s error bar'),
+    'core/lines/straightness.py': ('test/core/estimation/test_refine.py', 'the residual refine fits'),
+    'core/lens/fitting.py': ('test/core/lens/test_models.py', 'the models\' ROS fits'),
+    'core/lens/projections.py': ('test/core/zeroshot/test_solver.py', 'the laws, by Table 2'),
+    'core/report/canvas.py': ('test/core/report/test_calibration_report.py', 'what it draws'),
     'core/report/debug_sheet.py': ('test/core/report/test_calibration_report.py', 'refine --debug-image'),
-    'core/report/synthetic.py': ('test/core/report/test_calibration_report.py', 'the solve report\'s preview'),
-    'core/zeroshot/brent.py': ('test/product/test_readme_claims.py', 'the solver\'s root to machine precision'),
-    'core/zeroshot/consistency.py': ('test/core/zeroshot/test_spec_consistency.py', 'FOV warnings with the spec\'s checks'),
-    'core/zeroshot/wide_solver.py': ('test/core/lens/test_wide_fov.py', 'the solver of the wide model, with it'),
-    'ros/echo.py': ('test/product/test_readme_claims_ros.py', 'the echo tool the docs use'),
-    'ros/entry_point.py': ('test/product/test_packaging.py', 'the installed node executable'),
-    'ros/executors.py': ('test/ros/test_node_lazy.py', 'the node under both executors'),
-    'ros/messages.py': ('test/product/test_reliability.py', 'CameraInfo filled from any calibration'),
-    'ros/parameter_service.py': ('test/ros/test_node_params.py', 'the node\'s parameters set from another process'),
+    'core/report/synthetic.py': ('test/core/report/test_calibration_report.py', 'the solve preview'),
+    'core/zeroshot/brent.py': ('test/product/test_readme_claims.py', 'the solver\'s root, exact'),
+    'core/zeroshot/consistency.py': ('test/core/zeroshot/test_spec_consistency.py', 'with the spec'),
+    'core/zeroshot/wide_solver.py': ('test/core/lens/test_wide_fov.py', 'with the wide model'),
+    'ros/echo.py': ('test/product/test_readme_claims_ros.py', 'as the docs use it'),
+    'ros/entry_point.py': ('test/product/test_packaging.py', 'the installed node'),
+    'ros/executors.py': ('test/ros/test_node_lazy.py', 'the node on both'),
+    'ros/messages.py': ('test/product/test_reliability.py', 'CameraInfo of any calibration'),
+    'ros/parameter_service.py': ('test/ros/test_node_params.py', 'parameters set from outside'),
 }
-# cli.py is becoming the package cli/ (one module per verb): its tests are already in test/cli/.
-TEST_DIR_OF = {'cli.py': 'test/cli'}
+TEST_DIR_OF = {'cli.py': 'test/cli'}  # cli.py is becoming the package cli/: its tests are there already
+REPO, TESTS = PACKAGE.parent, PACKAGE.parent / 'test'
+WHERE = 'docs/architecture.md, "Where the tests are": '
 
 
-def package_modules():
-    """Paths of the package's modules relative to the package ('core/zeroshot/solver.py'), without
-    the __init__.py files."""
-    return sorted(path.relative_to(PACKAGE).as_posix() for path in PACKAGE.rglob('*.py')
-                  if path.name != '__init__.py' and '__pycache__' not in path.parts)
+def modules():
+    return sorted(p.relative_to(PACKAGE).as_posix() for p in PACKAGE.rglob('*.py')
+                  if p.name != '__init__.py' and '__pycache__' not in p.parts)
 
 
-def mirror_directory_of(module: str) -> Path:
-    """test/<dir>/ for zeroshot_calib_ros/<dir>/<module>.py."""
-    return REPO / TEST_DIR_OF[module] if module in TEST_DIR_OF else TESTS / Path(module).parent
+def own_tests(module):
+    """test/<dir>/test_<module>*.py of zeroshot_calib_ros/<dir>/<module>.py."""
+    directory = REPO / TEST_DIR_OF[module] if module in TEST_DIR_OF else TESTS / Path(module).parent
+    return directory, sorted(directory.glob(f'test_{Path(module).stem}*.py'))
 
 
-def names(text: str, module: str) -> bool:
-    """Whether a test file imports a module or mentions it: its dotted name, its path, or its name
-    as a word (`brent` in "Brent's method", `executors` in "both executors")."""
+def names(text, module):
+    """A test file imports or mentions a module: dotted name, path or stem as a word."""
     path = Path(module)
-    dotted = '.'.join(path.with_suffix('').parts)
-    package = '.'.join(path.parent.parts)
-    return (f'zeroshot_calib_ros.{dotted}' in text or module in text
-            or re.search(rf'from zeroshot_calib_ros\.{re.escape(package)} import [^\n]*\b{path.stem}\b', text) is not None
-            or re.search(rf'(?i)(?<![a-z0-9]){re.escape(path.stem)}(?![a-z0-9])', text) is not None)
+    return ('zeroshot_calib_ros.' + '.'.join(path.with_suffix('').parts) in text or module in text
+            or re.search(rf'(?i)(?<![a-z0-9]){path.stem}(?![a-z0-9])', text) is not None)
 
 
 def test_every_module_has_its_tests_where_its_path_says():
-    missing = []
-    for module in package_modules():
-        directory = mirror_directory_of(module)
-        if any(directory.glob(f'test_{Path(module).stem}*.py')):
-            continue
-        if module in TESTED_THROUGH:
-            continue
-        missing.append(f'zeroshot_calib_ros/{module}: put its tests in '
-                       f'{(directory / f"test_{Path(module).stem}.py").relative_to(REPO)} (or '
-                       f'test_{Path(module).stem}_<aspect>.py beside it); if another module\'s tests cover it, '
-                       'list it in TESTED_THROUGH of test/product/test_architecture.py with that file and why')
-    assert missing == [], '\n'.join(['docs/architecture.md, "Where the tests are":'] + missing)
+    missing = [f'zeroshot_calib_ros/{m}: its tests go to {(d / ("test_" + Path(m).stem)).relative_to(REPO)}'
+               '[_<aspect>].py (or, if another file tests it, to TESTED_THROUGH of test/product/test_architecture.py)'
+               for m in modules() for d, found in [own_tests(m)] if not found and m not in TESTED_THROUGH]
+    assert missing == [], WHERE + '\n'.join(missing)
 
 
-def test_tested_through_names_real_modules_and_files_that_name_them():
-    modules = set(package_modules())
-    wrong = []
-    for module in sorted(set(TEST_DIR_OF) - modules):
-        wrong.append(f'TEST_DIR_OF: zeroshot_calib_ros/{module} no longer exists: its tests go to test/<dir>/ '
-                     'of its path now; remove the entry')
-    for module, (test_file, why) in sorted(TESTED_THROUGH.items()):
-        target = REPO / test_file
-        if module not in modules:
-            wrong.append(f'TESTED_THROUGH: zeroshot_calib_ros/{module} no longer exists: remove its entry')
-        elif any(mirror_directory_of(module).glob(f'test_{Path(module).stem}*.py')):
-            wrong.append(f'TESTED_THROUGH: zeroshot_calib_ros/{module} has its own test file now: remove its entry')
-        elif not target.is_file():
-            wrong.append(f'TESTED_THROUGH: {test_file} (for zeroshot_calib_ros/{module}) does not exist: name the '
-                         'file that tests it now')
-        elif not names(target.read_text(), module):
-            wrong.append(f'TESTED_THROUGH: {test_file} neither imports nor mentions zeroshot_calib_ros/{module}: '
-                         'is it really the file that tests it?')
-        assert why, module
-    assert wrong == [], '\n'.join(wrong)
+def test_tested_through_lists_modules_without_tests_and_files_that_test_them():
+    wrong = [f'TEST_DIR_OF: no {m} any more: remove it' for m in set(TEST_DIR_OF) - set(modules())]
+    for module, (test_file, why) in TESTED_THROUGH.items():
+        if module not in modules() or own_tests(module)[1]:
+            wrong.append(f'TESTED_THROUGH: {module} is gone or has test files of its own: remove it')
+        elif not (REPO / test_file).is_file() or not names((REPO / test_file).read_text(), module) or not why:
+            wrong.append(f'TESTED_THROUGH: {test_file} is no file naming {module}: give the file that tests it')
+    assert wrong == [], WHERE + '\n'.join(wrong)
 
 
 def test_every_test_file_is_in_a_mirror_of_the_package_or_in_test_product():
-    allowed = {TESTS, TESTS / 'product'} | {REPO / d for d in TEST_DIR_OF.values()}
-    allowed |= {TESTS / path.relative_to(PACKAGE) for path in PACKAGE.rglob('*')
-                if path.is_dir() and path.name != '__pycache__' and (path / '__init__.py').exists()}
-    misplaced = [path.relative_to(REPO).as_posix() for path in sorted(TESTS.rglob('test_*.py'))
-                 if path.parent not in allowed and 'mutation' not in path.relative_to(TESTS).parts]
-    assert misplaced == [], (
-        'test files outside the mirror of the package (docs/architecture.md, "Where the tests are": the tests '
-        'of zeroshot_calib_ros/<dir>/<module>.py go to test/<dir>/test_<module>*.py, tests of the product as a '
-        'whole to test/product/): ' + ', '.join(misplaced))
+    allowed = {TESTS, TESTS / 'product', TESTS / 'mutation'} | {REPO / d for d in TEST_DIR_OF.values()}
+    allowed |= {TESTS / p.parent.relative_to(PACKAGE) for p in PACKAGE.rglob('__init__.py')}
+    misplaced = [str(p.relative_to(REPO)) for p in TESTS.rglob('test_*.py') if p.parent not in allowed]
+    assert misplaced == [], WHERE + 'the tests of zeroshot_calib_ros/<dir>/<module>.py go to ' \
+        f'test/<dir>/test_<module>*.py, the tests of the product as a whole to test/product/: move {misplaced}'
 
 
-def test_test_file_names_are_unique():
-    """Without __init__.py files, pytest imports each test file by its name alone (and test modules
-    import each other by name: test/conftest.py puts every test directory on sys.path)."""
-    seen = {}
-    for path in sorted(TESTS.rglob('*.py')):
-        if 'mutation' in path.relative_to(TESTS).parts or '__pycache__' in path.parts:
-            continue
-        seen.setdefault(path.name, []).append(path.relative_to(REPO).as_posix())
-    twice = {name: paths for name, paths in seen.items() if len(paths) > 1}
-    assert twice == {}, f'test files (and helpers) of the same name, which pytest cannot both import: {twice}; rename one'
-    assert not list(TESTS.rglob('__init__.py')), 'test/ has no __init__.py (helpers are imported by name)'
+def test_test_file_names_are_unique_and_test_has_no_init():
+    """pytest imports test files by name (no __init__.py), and test modules each other."""
+    paths = [p for p in TESTS.rglob('*.py') if 'mutation' not in p.parts]
+    twice = sorted(str(p.relative_to(REPO)) for p in paths if [q.name for q in paths].count(p.name) > 1)
+    assert twice == [], WHERE + f'one name, two files (pytest imports only one): rename one of {twice}'
+    assert not list(TESTS.rglob('__init__.py')), WHERE + 'test/ has no __init__.py (helpers are imported by name)'
