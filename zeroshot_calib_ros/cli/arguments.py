@@ -88,6 +88,11 @@ def add_circle_arguments(parser, refine=False):
                         help='circular fisheye: field of view across the image circle (deg)')
 
 
+def add_progress_argument(parser):
+    parser.add_argument('--progress', action='store_true',
+                        help='report progress on stderr (default: when stderr is a terminal, without --json)')
+
+
 def options_given(args, names):
     """The command-line spelling of each of ``names`` given (not None) in ``args``."""
     return ['--' + n.replace('_', '-') for n in names if getattr(args, n, None) is not None]

@@ -21,7 +21,8 @@ from ..core.ros_data.calibration_file import CameraCalibration, json_safe, solut
 from ..core.ros_data.rectify import principal_point_camera_matrix
 from ..core.zeroshot.solver import NoConvergence, solve_zero_shot
 from ..core.zeroshot.spec import SpecError
-from .arguments import EXIT_NOT_ADOPTED, EXIT_STATUSES, REPORT_HELP, CliError, add_output_arguments, number
+from .arguments import (EXIT_NOT_ADOPTED, EXIT_STATUSES, REPORT_HELP, CliError, add_output_arguments,
+                        add_progress_argument, number)
 from .corners import add_corner_arguments, corner_set, fov_spec
 from .output import (end_progress, fit_warnings, kannala_brandt_record, not_adopted, print_warnings,
                      read_input_image, save_calibration, uncertainty_line, with_progress, write_report)
@@ -59,8 +60,7 @@ def add_parser(subparsers):
     calib.add_argument('--yaml', metavar='FILE', help='write a camera_info_manager calibration file')
     calib.add_argument('--report', metavar='OUT.png',
                        help=REPORT_HELP.format(extra=', the board coverage and the reprojection RMS of each image'))
-    calib.add_argument('--progress', action='store_true',
-                       help='report progress on stderr (default: when stderr is a terminal, without --json)')
+    add_progress_argument(calib)
     calib.set_defaults(run=run)
 
 

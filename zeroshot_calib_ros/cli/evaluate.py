@@ -11,7 +11,7 @@ from ..core.lens.models import camera_from_calibration
 from ..core.lens.ray_limits import missing_fov
 from ..core.ros_data.calibration_file import json_safe
 from ..core.zeroshot.spec import CameraSpec
-from .arguments import CliError, integer
+from .arguments import CliError, add_progress_argument, integer
 from .corners import add_corner_arguments, corner_set, fov_spec
 from .output import end_progress, load_calibration, with_progress
 
@@ -30,8 +30,7 @@ def add_parser(subparsers):
     ev.add_argument('--runs', type=integer, help='only the first N single-shot runs (quicker, partial)')
     ev.add_argument('--name', help='camera name in the tables (default: the image folder / file name)')
     ev.add_argument('--json', action='store_true', help='print one JSON object')
-    ev.add_argument('--progress', action='store_true',
-                    help='report progress on stderr (default: when stderr is a terminal, without --json)')
+    add_progress_argument(ev)
     ev.set_defaults(run=run)
 
 

@@ -15,7 +15,7 @@ from ..core.ros_data.calibration_file import CameraCalibration, json_safe, solut
 from ..core.zeroshot.presets import spec_with_preset
 from ..core.zeroshot.solver import solve_zero_shot
 from .arguments import (EXIT_NOT_ADOPTED, EXIT_STATUSES, IMAGE_BUDGET, REPORT_HELP, CliError, add_circle_arguments,
-                        add_fov_tolerance_argument, number)
+                        add_fov_tolerance_argument, add_progress_argument, number)
 from .output import (check_output_image, fit_warnings, kannala_brandt_record, not_adopted, print_warnings,
                      progress_line, read_input_image, save_calibration, uncertainty_line, write_png, write_report)
 
@@ -43,8 +43,7 @@ def add_parser(subparsers):
                              'left out for staying put (orange), with the verdict, and the first image rectified '
                              'before (zero-shot) and after')
     refine.add_argument('--report', metavar='OUT.png', help=REPORT_HELP.format(extra=' of the first image'))
-    refine.add_argument('--progress', action='store_true',
-                        help='report progress on stderr (default: when stderr is a terminal, without --json)')
+    add_progress_argument(refine)
     refine.set_defaults(run=run)
 
 
