@@ -30,6 +30,7 @@ def add_corner_arguments(parser):
 
 
 def image_paths(patterns):
+    """The files of ``patterns``: a name as it is, a glob pattern as its matches, sorted (none: an error)."""
     paths = []
     for pattern in patterns:
         if any(ch in pattern for ch in '*?['):
@@ -68,6 +69,7 @@ def corner_set(args, single=None, progress=None):
 
 
 def fov_spec(args, corners):
+    """The spec of the FOV flags at the corners' image size; None when none is given."""
     if args.hfov is None and args.vfov is None and args.dfov is None:
         return None
     return CameraSpec(corners.width, corners.height, args.hfov, args.vfov, args.dfov)
