@@ -21,6 +21,6 @@ import os
 # first; this covers formats whose header it does not parse). A user's setting wins.
 os.environ.setdefault('OPENCV_IO_MAX_IMAGE_PIXELS', '50000000')
 
-from .main import build_parser, main  # noqa: E402
+from .command import build_parser, main  # noqa: E402
 
 __all__ = ['build_parser', 'main']
