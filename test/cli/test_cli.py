@@ -385,7 +385,7 @@ def test_evaluate_spec_from_an_infinite_size_is_one_line(tmp_path, capsys):
 def test_evaluate_spec_from_keeps_fovs_over_180_degrees(tmp_path):
     import argparse
     import math
-    from zeroshot_calib_ros import cli
+    from zeroshot_calib_ros.cli import evaluate as cli
     from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
     w, h = 848, 800
     f = (w / 2) / math.radians(103)  # the equidistant law r = f theta: 103 degrees at the side edges

@@ -346,11 +346,12 @@ def test_batch_cells_are_ascii_decimals_only(tmp_path, capsys):
                                                                              '--fov-tolerance')])
 def test_options_are_checked_before_any_computation(tmp_path, capsys, monkeypatch, extra, word):
     """Checked before the fit: the fit is replaced by one that fails the test if it runs."""
-    import zeroshot_calib_ros.cli as cli
+    from zeroshot_calib_ros.cli import refine, solve
 
     def no_fit(*args, **kwargs):
         raise AssertionError('computed before checking the options')
-    monkeypatch.setattr(cli, 'solve_zero_shot', no_fit)
+    for verb in (solve, refine):
+        monkeypatch.setattr(verb, 'solve_zero_shot', no_fit)
     monkeypatch.chdir(tmp_path)
     status, out, err = run(capsys, 'solve', '--width', '1920', '--height', '1080', '--hfov', '118', *extra)
     one_line_error(status, err, word)

@@ -355,9 +355,9 @@ INSTALLED = REPO / 'install' / 'zeroshot_calib_ros' / 'lib' / 'zeroshot_calib_ro
 
 def _installed_is_current():
     installed = list((REPO / 'install' / 'zeroshot_calib_ros' / 'lib').glob('python3*/site-packages/'
-                                                                          'zeroshot_calib_ros/cli.py'))
+                                                                          'zeroshot_calib_ros/cli/command.py'))
     return INSTALLED.exists() and installed and installed[0].read_bytes() == (REPO / 'zeroshot_calib_ros' /
-                                                                              'cli.py').read_bytes()
+                                                                              'cli' / 'command.py').read_bytes()
 
 
 def subprocess_cases(files):
@@ -379,7 +379,7 @@ def subprocess_cases(files):
 @pytest.mark.parametrize('launcher', ['console-entry', 'installed-script'])
 def test_real_processes(files, launcher):
     if launcher == 'installed-script' and not _installed_is_current():
-        pytest.skip('the colcon install tree is missing or older than cli.py (colcon build refreshes it)')
+        pytest.skip('the colcon install tree is missing or older than cli/command.py (colcon build refreshes it)')
     prefix = [sys.executable, '-c', ENTRY] if launcher == 'console-entry' else [str(INSTALLED)]
     env = dict(os.environ)
     if launcher == 'installed-script':  # what sourcing install/setup.bash adds

@@ -20,6 +20,7 @@ import pytest
 import yaml
 
 import zeroshot_calib_ros.cli as cli
+import zeroshot_calib_ros.cli.output as cli_output
 from cli_run import run_main, same_result
 from test_calibration import TRUE, spec_of, synthetic_corners
 from zeroshot_calib_ros.core import CameraCalibration, CameraSpec, solve_zero_shot
@@ -165,7 +166,7 @@ def test_progress_is_shown_on_a_terminal_and_silent_on_a_pipe_or_with_json(comma
     assert same_result(json.loads(shown), json.loads(quiet))
     status, text, err = run_main(argv, capsys)
     assert status == 0 and not any(line.startswith(f'zeroshot-calib: {command}:') for line in err)
-    monkeypatch.setattr(cli, '_is_terminal', lambda stream: True)
+    monkeypatch.setattr(cli_output, '_is_terminal', lambda stream: True)
     status, _, err = run_main(argv + ['--json'], capsys)
     assert status == 0 and not any(f'zeroshot-calib: {command}:' in line for line in err)
     status = cli.main(argv)
@@ -186,7 +187,7 @@ def test_the_progress_line_ends_before_the_result_and_the_warnings(command, corn
     argv[argv.index('--hfov') + 1] = repr(spec.hfov - 10)
     argv[argv.index('--vfov') + 1] = repr(spec.vfov + 10)
     screen = io.StringIO()
-    monkeypatch.setattr(cli, '_is_terminal', lambda stream: True)
+    monkeypatch.setattr(cli_output, '_is_terminal', lambda stream: True)
     monkeypatch.setattr(sys, 'stdout', screen)
     monkeypatch.setattr(sys, 'stderr', screen)
     status = cli.main(argv)

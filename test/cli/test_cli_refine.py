@@ -285,7 +285,7 @@ def test_progress_is_silent_on_a_pipe_and_shown_with_the_flag(views, capsys, mon
     assert 'f ' in lines[0] and 'principal point (' in lines[0]
     assert any('fitted' in line for line in lines)
     # a terminal: shown without the flag, one line rewritten in place; --json keeps it quiet
-    import zeroshot_calib_ros.cli as cli
+    import zeroshot_calib_ros.cli.output as cli
     monkeypatch.setattr(cli, '_is_terminal', lambda stream: True)
     status, out, err = run(capsys, *views[:2], *SPEC_FLAGS, '--json')
     assert status == 0 and 'refine round' not in err

@@ -1192,11 +1192,11 @@ def test_solve_zero_shot_signature_is_library_mds():
 def test_an_internal_error_is_one_line_asking_for_a_report_with_status_1(capsys, monkeypatch):
     """cli.md, exit statuses: "1 ... or an internal error (a bug: one line saying so, asking you to
     report it with the command line)"; bad input is status 2."""
-    import zeroshot_calib_ros.cli as cli
+    import zeroshot_calib_ros.cli.presets as cli
 
     def broken(args):
         raise RuntimeError('something the code did not expect')
-    monkeypatch.setattr(cli, '_cmd_presets', broken)
+    monkeypatch.setattr(cli, 'run', broken)
     status, out, err = run_main(['presets'], capsys)
     assert status == 1 and out == '' and len(err) == 1, (status, err)
     assert err[0].startswith('zeroshot-calib: internal error: RuntimeError') and 'report' in err[0]

@@ -154,7 +154,7 @@ def test_an_unwritable_directory_names_the_target(tmp_path, monkeypatch, temp_fi
 
 
 def test_callers_catching_oserror_still_catch_save_errors(tmp_path):
-    """ros/node.py and cli.py catch OSError around save() and print exc.strerror."""
+    """ros/node.py and cli/output.py catch OSError around save() and print exc.strerror."""
     solution_like = sample()
     try:
         solution_like.save(str(tmp_path / 'cam.txt'))

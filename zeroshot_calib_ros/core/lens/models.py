@@ -5,7 +5,8 @@ OpenCV's convention. Every model takes arrays of shape (..., 3) / (..., 2) and r
 the matching shape; points a model cannot represent come back as NaN, never as a wrong number.
 
 - ``ZeroShotCamera``: the paper's exact model (pinhole K + fisheye distortion map G_w).
-- ``KannalaBrandtCamera``: OpenCV fisheye / ROS ``equidistant`` (k1..k4).
+- ``KannalaBrandtCamera``: OpenCV fisheye / ROS ``equidistant`` (k1..k4);
+  ``RadialKannalaBrandtCamera``: one with fx = fy as a RadialCamera, for the ROS fits.
 - ``PlumbBobCamera``: OpenCV's radial-tangential / ROS ``plumb_bob`` (k1, k2, p1, p2, k3).
 - ``PinholeCamera``: no distortion.
 """
@@ -297,6 +298,23 @@ class KannalaBrandtCamera(CameraModel):
         sx, sy = width / self.width, height / self.height
         return KannalaBrandtCamera(self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy,
                                    width, height, self.D)
+
+
+class RadialKannalaBrandtCamera(RadialCamera):
+    """A Kannala-Brandt camera with fx = fy seen as a RadialCamera: the same theta_d, with one focal
+    length f = fx and unprojection by pixel radius. The ROS fits of core/lens/fitting.py take it as
+    they take the zero-shot camera (fitting the KannalaBrandtCamera itself, whose unprojection goes
+    through the normalised radius, agrees only to the last bits)."""
+
+    def __init__(self, camera: KannalaBrandtCamera):
+        super().__init__(camera.fx, camera.cx, camera.cy, camera.width, camera.height)
+        self.kannala_brandt = camera
+
+    def theta_d(self, theta):
+        return self.kannala_brandt.theta_d(theta)
+
+    def theta_from_theta_d(self, theta_d):
+        return self.kannala_brandt.theta_from_theta_d(theta_d)
 
 
 class PlumbBobCamera(CameraModel):
