@@ -1,4 +1,6 @@
-"""The zeroshot-calib command line, as a user without ROS runs it."""
+"""The zeroshot-calib command line, as a user without ROS runs it: cli/command.py, the shared
+options of cli/arguments.py, and the verbs whose own test files do not cover them (solve,
+rectify, evaluate)."""
 import json
 import math
 import re

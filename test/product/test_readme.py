@@ -46,7 +46,8 @@ def run_python(path, cwd):
 
 
 def cli(command, cwd=REPO):
-    """A documented command line `zeroshot-calib ...`, run as the installed console script would."""
+    """A documented command line `zeroshot-calib ...`, run as the installed console script would
+    (through cli/__main__.py)."""
     argv = shlex.split(command.replace('\\\n', ' '))
     assert argv[0] == 'zeroshot-calib'
     return subprocess.run([sys.executable, '-m', 'zeroshot_calib_ros.cli', *argv[1:]], cwd=cwd, env=_env(),
