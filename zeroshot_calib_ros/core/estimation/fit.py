@@ -82,14 +82,18 @@ def _outliers(rms: np.ndarray, sigma: float) -> np.ndarray:
     return ~(rms <= threshold)
 
 
-def _truncated_start(layout: KannalaBrandtLayout, camera: KannalaBrandtCamera) -> np.ndarray:
+def truncated_start(layout: KannalaBrandtLayout, camera: KannalaBrandtCamera,
+                    theta_max: Optional[float] = None) -> np.ndarray:
     """Start of a lower order: f and the principal point of ``camera``, and the deviations that
-    follow its theta_d best (linear least squares over the field)."""
+    follow its theta_d best (linear least squares over the field: 0 to ``theta_max``, by default
+    ``camera``'s largest field angle, or its base's)."""
     x0 = layout.x_from(camera)
     if layout.order:
-        top = camera.max_field_angle()
-        top = top if math.isfinite(top) and top > 0 else layout.base.max_field_angle()
-        theta = np.linspace(0.0, top if math.isfinite(top) and top > 0 else 1.0, 64)
+        if theta_max is None:
+            top = camera.max_field_angle()
+            top = top if math.isfinite(top) and top > 0 else layout.base.max_field_angle()
+            theta_max = top if math.isfinite(top) and top > 0 else 1.0
+        theta = np.linspace(0.0, theta_max, 64)
         with np.errstate(invalid='ignore', over='ignore'):
             target = camera.theta_d(theta) - layout.base.theta_d(theta)
         ok = np.isfinite(target)
@@ -147,7 +151,7 @@ def fit_lines(term: StraightnessTerm, priors: List, base: KannalaBrandtCamera,
     penalty = ORDER_PENALTY if ORDER_PENALTY is not None else math.log(max(n_points, 2))
     for order in reversed(orders):
         layout = top.with_order(order)
-        x0 = x if order == orders[-1] else _truncated_start(layout, top.camera(x))
+        x0 = x if order == orders[-1] else truncated_start(layout, top.camera(x))
         problem, solution = _solve(layout, sub, priors, x0, max_nfev)
         fits[order] = (layout, problem, solution)
         bic[order] = 2.0 * solution.cost + (3 + order) * penalty
