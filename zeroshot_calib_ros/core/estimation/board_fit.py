@@ -2,7 +2,7 @@
 
 ``fit_board(corners, spec, views)``: the camera is a Kannala-Brandt k1..k4 camera (ROS
 ``equidistant``, ``parameters.KannalaBrandtLayout``: f, cx, cy and deviations from the zero-shot
-shape), started from and shaped around the zero-shot camera (``refine.zero_shot_camera``:
+shape), started from and shaped around the zero-shot camera (``zero_shot.zero_shot_start``:
 'auto', fitted to KB4). Its evidence:
 
 - ``core.checkerboard.corner_term.CornerTerm``: the detected corners, the board poses and bends
