@@ -85,7 +85,7 @@ from ..checkerboard.corner_term import CornerTerm
 from ..checkerboard.corners import CornerSet, check_corner_set
 from ..lens.models import KannalaBrandtCamera
 from ..zeroshot.spec import CameraSpec
-from .fit import ORDER_PENALTY, truncated_start
+from .fit import ORDER_PENALTY, estimate_sigma, truncated_start
 from .parameters import KB_TERMS, KannalaBrandtLayout
 from .problem import Problem
 from .refine import MAX_FOV_SIGMAS
@@ -249,16 +249,6 @@ class BoardFit:
         return self.fitted_camera if self.fitted_camera is not None else self.camera
 
 
-def estimate_sigma(term: CornerTerm, camera, parameters: int) -> float:
-    """Corner noise (px per coordinate): squared distances over 2 M n - k n - parameters (k: each
-    view's eliminated numbers, 6 for the pose, 9 with the bend)."""
-    r = term.point_residuals(camera)
-    d2 = np.sum(r * r, axis=-1)[term.weights > 0]
-    d2 = d2[np.isfinite(d2)]
-    dof = max(2 * len(d2) - term.k * term.n - parameters, 1)
-    return max(float(math.sqrt(np.sum(d2) / dof)), MIN_SIGMA_PX)
-
-
 def _outliers(term: CornerTerm, camera, sigma: float) -> np.ndarray:
     d = np.linalg.norm(term.point_residuals(camera), axis=-1)
     d = np.where(np.isfinite(d), d, np.inf)
@@ -379,7 +369,7 @@ def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int
         problem, sol = solve(top, term.copy(sigma=sigma), x)
         x = sol.x
         camera = top.camera(x)
-        sigma = estimate_sigma(term, camera, x.size)
+        sigma = estimate_sigma(term, camera, x.size, MIN_SIGMA_PX)
         rejected = _outliers(term, camera, sigma)
         weights = np.where(rejected, 0.0, 1.0)
         if np.array_equal(weights, term.weights):

@@ -64,14 +64,14 @@ class LineFit:
     top_solution: Optional[ProblemSolution] = None
 
 
-def estimate_sigma(term: StraightnessTerm, camera, parameters: int) -> float:
-    """Noise sigma (px) of the curves' points: sum of squared distances over the degrees of
-    freedom (one per point, less two per curve for its plane and the camera's parameters)."""
-    r = term.point_residuals(camera)
-    d2 = np.sum(r * r, axis=1)
-    d2 = d2[np.isfinite(d2)]
-    dof = max(len(d2) - 2 * len(term) - parameters, 1)
-    return max(float(math.sqrt(np.sum(d2) / dof)), MIN_SIGMA_PX)
+def estimate_sigma(term, camera, parameters: int, floor: float = MIN_SIGMA_PX) -> float:
+    """Noise sigma (px) of a term's points: the sum of their squared distances
+    (``term.squared_distances``) over the degrees of freedom (``term.noise_dof``: for curves one per
+    point less two per curve for its plane, for board corners two per corner less each view's
+    eliminated numbers) less the camera's ``parameters``, at least 1; at least ``floor``."""
+    d2 = term.squared_distances(camera)
+    dof = max(term.noise_dof(len(d2)) - parameters, 1)
+    return max(float(math.sqrt(np.sum(d2) / dof)), floor)
 
 
 def _outliers(rms: np.ndarray, sigma: float) -> np.ndarray:
