@@ -36,7 +36,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from zeroshot_calib_ros.core import CameraSpec  # noqa: E402
-from zeroshot_calib_ros.core.checkerboard.calibration import calibrate, zero_shot_camera  # noqa: E402
+from zeroshot_calib_ros.core.checkerboard.calibration import calibrate  # noqa: E402
+from zeroshot_calib_ros.core.checkerboard.calibration import paper_zero_shot_camera as zero_shot_camera  # noqa: E402
 from zeroshot_calib_ros.core.checkerboard.corners import Board, detect_corners  # noqa: E402
 from zeroshot_calib_ros.core.checkerboard.evaluation import reprojection_error  # noqa: E402
 from zeroshot_calib_ros.core.estimation import board_fit  # noqa: E402

@@ -76,16 +76,17 @@ def _calibrate(args, progress):
             raise CliError(f'board {corners.board.size} not found in {args.single}')
         views = [corners.index(args.single)]
     spec = fov_spec(args, corners)
-    spec_warnings = _spec_warnings(spec, args.fov_tolerance)
+    zero_shot = _spec_solution(spec, args.fov_tolerance)
+    spec_warnings = [] if zero_shot is None else zero_shot.warnings
     if spec is not None and args.spec_as == 'evidence':
         if args.principal_point != 'auto':
             raise CliError(f'--principal-point {args.principal_point} is for --spec-as start (FC_eq.d.): the '
                            'spec-as-evidence fit always frees the principal point under its prior')
-        return _calibrate_with_spec(args, corners, views, spec, spec_warnings, progress)
+        return _calibrate_with_spec(args, corners, views, spec, spec_warnings, progress, zero_shot)
     principal_point = {'auto': None, 'fixed': False, 'free': True}[args.principal_point]
     if progress is not None:
         progress(f'fitting FC_eq.d. to {len(corners) if views is None else len(views)} image(s)')
-    result = calibrate(corners, 'fc+zs' if spec is not None else 'fc', views, spec, principal_point)
+    result = calibrate(corners, 'fc+zs' if spec is not None else 'fc', views, spec, principal_point, zero_shot)
     end_progress()
     if not result.ok:
         raise CliError(f'calibration failed: {result.error}')
@@ -136,14 +137,14 @@ def _calibrate(args, progress):
     return 0
 
 
-def _calibrate_with_spec(args, corners, views, spec, spec_warnings=(), progress=None):
+def _calibrate_with_spec(args, corners, views, spec, spec_warnings=(), progress=None, solution=None):
     """`calibrate` with the spec as evidence: the MAP over corners, FOVs and priors
     (core/estimation/board_fit.py); the camera is Kannala-Brandt (ROS equidistant, exact). Exit
     status EXIT_NOT_ADOPTED when the fit is not adopted (the zero-shot camera is written)."""
     from ..core.estimation.board_fit import METHOD_LABEL, fit_board  # scipy.optimize: only when asked
     if not (args.fov_tolerance > 0 and math.isfinite(args.fov_tolerance)):
         raise CliError(f'--fov-tolerance {args.fov_tolerance:g} is invalid: allowed: degrees, greater than 0')
-    fit = fit_board(corners, spec, views, fov_tolerance_deg=args.fov_tolerance, progress=progress)
+    fit = fit_board(corners, spec, views, fov_tolerance_deg=args.fov_tolerance, progress=progress, solution=solution)
     end_progress()
     camera = fit.camera
     if args.distortion_model == 'equidistant':
@@ -206,16 +207,16 @@ def _calibrate_with_spec(args, corners, views, spec, spec_warnings=(), progress=
     return status
 
 
-def _spec_warnings(spec, fov_tolerance):
-    """The warnings of the zero-shot camera solved from ``spec`` (given FOVs it misses by more
-    than ``fov_tolerance``); [] without a spec, or when none can be solved (the calibration then
+def _spec_solution(spec, fov_tolerance):
+    """The zero-shot solution of ``spec``, its warnings the given FOVs it misses by more than
+    ``fov_tolerance``; None without a spec, or when none can be solved (the calibration then
     says why)."""
     if spec is None:
-        return []
+        return None
     try:
-        return solve_zero_shot(spec, 'auto', fov_tolerance=fov_tolerance).warnings
+        return solve_zero_shot(spec, 'auto', fov_tolerance=fov_tolerance)
     except (SpecError, NoConvergence):
-        return []
+        return None
 
 
 def _calibrated_P(calibration, camera, args):

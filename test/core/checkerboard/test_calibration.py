@@ -16,8 +16,8 @@ from zeroshot_calib_ros.core import CameraSpec, ZeroShotCamera
 from zeroshot_calib_ros.core.checkerboard import calibration as calib
 from zeroshot_calib_ros.core.checkerboard.calibration import (CalibrationError, calibrate,
                                                  calibrate_opencv_fisheye, calibrate_zhang,
-                                                 opencv_fisheye_flag, perspective_camera,
-                                                 zero_shot_camera)
+                                                 opencv_fisheye_flag, perspective_camera)
+from zeroshot_calib_ros.core.checkerboard.calibration import paper_zero_shot_camera as zero_shot_camera
 from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.checkerboard.corners import (Board, CornersError, CornerSet, detect_corners,
                                              parse_board)

@@ -206,7 +206,7 @@ def test_shared_set_single_shot_with_the_spec_is_never_worse_than_zero_shot():
     import sys
     sys.path.insert(0, str(Path(__file__).resolve().parents[3] / 'benchmarks'))
     from board_with_spec import shared_set
-    from zeroshot_calib_ros.core.checkerboard.calibration import zero_shot_camera
+    from zeroshot_calib_ros.core.checkerboard.calibration import paper_zero_shot_camera as zero_shot_camera
     from zeroshot_calib_ros.core.checkerboard.evaluation import reprojection_error
     corners, spec, _ = shared_set(SHARED)
     zs, _ = zero_shot_camera(spec, corners.width, corners.height)

@@ -144,9 +144,16 @@ def default_camera(width: int, height: int, projection: str = 'equidistant') -> 
     return ZeroShotCamera(f, width / 2.0, height / 2.0, width, height, 1.0 / f, PROJECTIONS[projection])
 
 
-def zero_shot_camera(spec: CameraSpec, width: Optional[int] = None, height: Optional[int] = None):
+def paper_zero_shot_camera(spec: CameraSpec, width: Optional[int] = None, height: Optional[int] = None,
+                           solution=None):
     """(ZeroShotCamera, note) of ``spec`` with the paper's equidistant model, at ``width`` x
-    ``height`` (a spec at another resolution of the same aspect is scaled).
+    ``height`` (a spec at another resolution of the same aspect is scaled): FC+ZS's start. Not
+    ``core.estimation.zero_shot.zero_shot_camera`` (the 'auto' solution fitted to Kannala-Brandt).
+
+    ``solution``: the spec's solution if already computed (``solve_zero_shot``, any projection):
+    used when its camera is this one (the paper's model with the equidistant law: what 'auto'
+    gives unless three FOVs choose another law or the spec needs the wide model), else the spec
+    is solved here.
 
     The paper's model stops at 90 degrees off-axis, so ``solve_zero_shot`` refuses its
     equidistant model for specs whose image *corners* reach that (a 180-degree lens). Board
@@ -156,7 +163,10 @@ def zero_shot_camera(spec: CameraSpec, width: Optional[int] = None, height: Opti
     """
     note = ''
     try:
-        camera = solve_zero_shot(spec, 'equidistant').camera
+        if _is_paper_equidistant(spec, solution):
+            camera = solution.camera
+        else:
+            camera = solve_zero_shot(spec, 'equidistant').camera
     except UnrepresentableSpec:
         camera = solve_zero_shot(spec, 'wide-equidistant').camera
         note = ("the paper's model cannot represent this spec (image corners 90 degrees or more "
@@ -170,6 +180,13 @@ def zero_shot_camera(spec: CameraSpec, width: Optional[int] = None, height: Opti
                                    f'{width}x{height}: aspect ratios differ')
         camera = camera.scaled(width, height)
     return camera, note
+
+
+def _is_paper_equidistant(spec: CameraSpec, solution) -> bool:
+    """Whether ``solution`` is of ``spec`` and its camera the paper's model with the equidistant law
+    (what ``solve_zero_shot(spec, 'equidistant')`` gives)."""
+    return (solution is not None and solution.spec == spec and type(solution.camera) is ZeroShotCamera
+            and solution.camera.projection.name == 'equidistant')
 
 
 def perspective_camera(spec: CameraSpec, width: Optional[int] = None,
@@ -696,8 +713,10 @@ def calibrate_opencv_fisheye(corners: CornerSet, views: Optional[Sequence[int]] 
 
 
 def calibrate(corners: CornerSet, method: str = 'fc', views: Optional[Sequence[int]] = None,
-              spec: Optional[CameraSpec] = None, principal_point: Optional[bool] = None) -> CalibrationResult:
-    """Run ``method`` (one of METHODS) on ``views`` of ``corners``. ``fc+zs`` needs ``spec``.
+              spec: Optional[CameraSpec] = None, principal_point: Optional[bool] = None,
+              solution=None) -> CalibrationResult:
+    """Run ``method`` (one of METHODS) on ``views`` of ``corners``. ``fc+zs`` needs ``spec``
+    (``solution``: its zero-shot solution if already computed, see ``paper_zero_shot_camera``).
 
     Input errors raise CalibrationError / SpecError; numerical failures of a method come back as
     a result with ``ok=False``.
@@ -707,7 +726,7 @@ def calibrate(corners: CornerSet, method: str = 'fc', views: Optional[Sequence[i
     if method == 'fc+zs':
         if spec is None:
             raise CalibrationError('fc+zs needs a spec: give hfov / vfov / dfov')
-        start, note = zero_shot_camera(spec, corners.width, corners.height)
+        start, note = paper_zero_shot_camera(spec, corners.width, corners.height, solution)
         result = calibrate_fc(corners, views, start, 'zero-shot', principal_point, method='fc+zs')
         if note:
             result.notes.append(note)

@@ -188,6 +188,17 @@ class CornerTerm:
         return np.where(np.isfinite(r), r, self.invalid_px).reshape(len(idx), -1)
 
     # -- residuals ------------------------------------------------------------------------------
+    def squared_distances(self, camera: CameraModel) -> np.ndarray:
+        """Squared distance (px^2) of every corner in use (not rejected) that ``camera`` projects."""
+        r = self.point_residuals(camera)
+        d2 = np.sum(r * r, axis=-1)[self.weights > 0]
+        return d2[np.isfinite(d2)]
+
+    def noise_dof(self, points: int) -> int:
+        """Degrees of freedom of ``points`` such distances beside the camera: two a corner (its
+        coordinates), less each view's eliminated numbers (``k``: 6 for the pose, 9 with the bend)."""
+        return 2 * points - self.k * self.n
+
     def point_residuals(self, camera: CameraModel) -> np.ndarray:
         """(n, M, 2) detected minus projected at the eliminated poses; NaN where not projectable;
         rejected corners included (unweighted), so that they can be judged."""

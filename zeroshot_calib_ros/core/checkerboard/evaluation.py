@@ -28,11 +28,11 @@ from typing import Callable, Dict, List, Optional, Sequence
 
 import numpy as np
 
-from .calibration import (METHOD_LABELS, CalibrationResult, calibrate, perspective_camera,
-                          zero_shot_camera)
+from .calibration import METHOD_LABELS, CalibrationResult, calibrate, paper_zero_shot_camera, perspective_camera
 from ..lens.models import CameraModel, KannalaBrandtCamera, PlumbBobCamera, RadialCamera
 from .corners import CornerSet, check_corner_set
 from .pose import BoardPoses, board_poses
+from ..zeroshot.solver import solve_zero_shot
 from ..zeroshot.spec import CameraSpec, SpecError
 
 FULL_METHODS = ('pers', 'zs', 'zhang', 'fc', 'fc+zs', 'fisheye')
@@ -189,17 +189,29 @@ class Evaluation:
     duplicates: List[tuple] = field(default_factory=list)
 
 
-def _full_row(key, corners, spec) -> FullRow:
+def _paper_solution(spec: Optional[CameraSpec]):
+    """The spec's solution with the paper's equidistant model, solved once for every row and run
+    that starts from it (``calibration.paper_zero_shot_camera``); None without a spec, or when it
+    cannot be solved so (each row and run then solves the spec itself and says why, as before)."""
+    if spec is None:
+        return None
+    try:
+        return solve_zero_shot(spec, 'equidistant')
+    except Exception:  # noqa: BLE001 (whatever it is, the rows meet it again and report it in their place)
+        return None
+
+
+def _full_row(key, corners, spec, solution=None) -> FullRow:
     row = FullRow(key)
     try:
         if key == 'pers':
             row.camera = perspective_camera(spec, corners.width, corners.height)
         elif key == 'zs':
-            row.camera, note = zero_shot_camera(spec, corners.width, corners.height)
+            row.camera, note = paper_zero_shot_camera(spec, corners.width, corners.height, solution)
             if note:
                 row.notes.append(note)
         else:
-            row.result = calibrate(corners, key, spec=spec)
+            row.result = calibrate(corners, key, spec=spec, solution=solution)
             row.notes += row.result.notes
             if not row.result.ok:
                 row.failure = row.result.error
@@ -239,13 +251,14 @@ def evaluate(corners: CornerSet, spec: Optional[CameraSpec] = None, shots: int =
     runs = list(range(n)) if runs is None else list(runs)
     report = check_corner_set(corners)  # a wrong board or a degenerate view: CornersError
     say = progress or (lambda message: None)
+    solution = _paper_solution(spec)
     full = {}
     for key in full_methods:
         if key in NEEDS_SPEC and spec is None:
             full[key] = FullRow(key, failure='no spec given (needs hfov / vfov / dfov)')
             continue
         say(f'full: {LABELS[key]}')
-        full[key] = _full_row(key, corners, spec)
+        full[key] = _full_row(key, corners, spec, solution)
     studies = {}
     for key in shot_methods:
         study = ShotStudy(key, shots)
@@ -257,7 +270,7 @@ def evaluate(corners: CornerSet, spec: Optional[CameraSpec] = None, shots: int =
             say(f'{shots}-shot: {study.label}, run {number} of {len(runs)}')
             views = shot_views(n, k, shots)
             try:
-                result = calibrate(corners, key, views=views, spec=spec)
+                result = calibrate(corners, key, views=views, spec=spec, solution=solution)
             except SpecError as exc:
                 study.skipped = str(exc)
                 break

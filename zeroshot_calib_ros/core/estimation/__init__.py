@@ -16,6 +16,10 @@ May import ``core.lens``, ``core.zeroshot``, ``core.lines`` and ``core.checkerbo
   same interface.
 - ``problem.py``: ``Problem`` stacks and whitens the terms, applies each term's robust loss and
   solves with ``scipy.optimize.least_squares``; it knows nothing of what the terms mean.
+- ``zero_shot.py``: ``zero_shot_start``, the spec's zero-shot result made once per run (the solution,
+  its camera fitted to Kannala-Brandt k1..k4 at the images' size: ``zero_shot_camera``, its error
+  bar) as a ``ZeroShotStart``, which every fit below takes as its ``solution`` instead of solving
+  the spec again.
 - ``fit.py``: the robust MAP fit over line evidence: outlier curves rejected by their RMS, the
   model order chosen by an information criterion.
 - ``uncertainty.py``: covariance from the whitened Jacobian at the solution, propagated to the

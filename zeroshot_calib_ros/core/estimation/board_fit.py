@@ -2,7 +2,7 @@
 
 ``fit_board(corners, spec, views)``: the camera is a Kannala-Brandt k1..k4 camera (ROS
 ``equidistant``, ``parameters.KannalaBrandtLayout``: f, cx, cy and deviations from the zero-shot
-shape), started from and shaped around the zero-shot camera (``refine.zero_shot_camera``:
+shape), started from and shaped around the zero-shot camera (``zero_shot.zero_shot_start``:
 'auto', fitted to KB4). Its evidence:
 
 - ``core.checkerboard.corner_term.CornerTerm``: the detected corners, the board poses and bends
@@ -84,15 +84,15 @@ from ..checkerboard.calibration import OUTLIER_K_SIGMA, OUTLIER_MIN_PX, Calibrat
 from ..checkerboard.corner_term import CornerTerm
 from ..checkerboard.corners import CornerSet, check_corner_set
 from ..lens.models import KannalaBrandtCamera
-from ..zeroshot.solver import solve_zero_shot
 from ..zeroshot.spec import CameraSpec
-from .fit import ORDER_PENALTY
+from .fit import ORDER_PENALTY, estimate_sigma, truncated_start
 from .parameters import KB_TERMS, KannalaBrandtLayout
 from .problem import Problem
-from .refine import MAX_FOV_SIGMAS, zero_shot_camera
+from .refine import MAX_FOV_SIGMAS
 from .terms import FOV_TOLERANCE_DEG, SHAPE_SIGMA, FovTerm, PrincipalPointPrior, ShapePrior
 from .uncertainty import (Uncertainty, displacement, pixel_grid, probability_other_is_better, problem_uncertainty,
-                          systematic_covariance, zero_shot_uncertainty)
+                          systematic_covariance)
+from .zero_shot import zero_shot_start
 
 INITIAL_SIGMA_PX = 0.5
 MIN_SIGMA_PX = 0.05
@@ -249,31 +249,10 @@ class BoardFit:
         return self.fitted_camera if self.fitted_camera is not None else self.camera
 
 
-def estimate_sigma(term: CornerTerm, camera, parameters: int) -> float:
-    """Corner noise (px per coordinate): squared distances over 2 M n - k n - parameters (k: each
-    view's eliminated numbers, 6 for the pose, 9 with the bend)."""
-    r = term.point_residuals(camera)
-    d2 = np.sum(r * r, axis=-1)[term.weights > 0]
-    d2 = d2[np.isfinite(d2)]
-    dof = max(2 * len(d2) - term.k * term.n - parameters, 1)
-    return max(float(math.sqrt(np.sum(d2) / dof)), MIN_SIGMA_PX)
-
-
 def _outliers(term: CornerTerm, camera, sigma: float) -> np.ndarray:
     d = np.linalg.norm(term.point_residuals(camera), axis=-1)
     d = np.where(np.isfinite(d), d, np.inf)
     return d > max(OUTLIER_K_SIGMA * sigma, OUTLIER_MIN_PX)
-
-
-def _truncated_start(layout: KannalaBrandtLayout, camera: KannalaBrandtCamera) -> np.ndarray:
-    """f, cx, cy of ``camera`` and the deviations of a lower order that follow its theta_d best."""
-    x0 = layout.x_from(camera)
-    if layout.order:
-        theta = np.linspace(0.0, layout.theta_max, 64)
-        target = camera.theta_d(theta) - layout.base.theta_d(theta)
-        basis = np.stack([theta ** (2 * j + 3) for j in range(layout.order)], axis=1)
-        x0[3:] = np.linalg.lstsq(basis, target, rcond=None)[0]
-    return x0
 
 
 def _uncertainty(top: Problem, top_x, camera, order) -> Uncertainty:
@@ -341,10 +320,12 @@ def spec_contradiction(problem: Problem, x, fov: FovTerm, tolerance_deg: float, 
 def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int]] = None,
               fov_tolerance_deg: float = FOV_TOLERANCE_DEG, orders=range(KB_TERMS + 1),
               max_nfev: int = 60, shape_sigma: float = SHAPE_SIGMA,
-              progress: Optional[Callable[[str], None]] = None) -> BoardFit:
+              progress: Optional[Callable[[str], None]] = None, solution=None) -> BoardFit:
     """The MAP calibration of ``views`` (all images by default) of ``corners`` with ``spec``'s FOVs
     as evidence (module docstring); ``orders``: the model orders tried; ``shape_sigma``: the shape
-    prior's RMS relative deviation; ``progress`` is told of each fit before it runs. Input errors
+    prior's RMS relative deviation; ``progress`` is told of each fit before it runs; ``solution``: the
+    spec's zero-shot solution if already computed, or its whole zero-shot result at the images' size
+    and ``fov_tolerance_deg`` (a ``zero_shot.ZeroShotStart``). Input errors
     raise CalibrationError / CornersError / SpecError."""
     say = progress or (lambda message: None)
     if spec is None or not (spec.given() or getattr(spec, 'circle_fov', None) is not None):
@@ -360,9 +341,8 @@ def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int
     W, H = corners.width, corners.height
     if (W, H) != (spec.width, spec.height):
         raise CalibrationError(f'the spec is {spec.width}x{spec.height} but the images are {W}x{H}')
-    solution = solve_zero_shot(spec, 'auto')
-    zs = zero_shot_camera(spec, W, H, solution)
-    zs_u = zero_shot_uncertainty(spec, fov_tolerance_deg, solution)
+    start = zero_shot_start(spec, W, H, fov_tolerance_deg, solution)
+    zs, zs_u = start.camera, start.uncertainty
     zs_u_px = zs_u.rms_px
     fov = FovTerm.from_spec(spec, fov_tolerance_deg, W, H)
     theta_max = float(zs.max_field_angle()) if math.isfinite(zs.max_field_angle()) else math.pi / 2
@@ -389,7 +369,7 @@ def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int
         problem, sol = solve(top, term.copy(sigma=sigma), x)
         x = sol.x
         camera = top.camera(x)
-        sigma = estimate_sigma(term, camera, x.size)
+        sigma = estimate_sigma(term, camera, x.size, MIN_SIGMA_PX)
         rejected = _outliers(term, camera, sigma)
         weights = np.where(rejected, 0.0, 1.0)
         if np.array_equal(weights, term.weights):
@@ -401,7 +381,7 @@ def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int
         say(f'fitting {len(views)} image{"s" if len(views) > 1 else ""} and the spec: lens model with '
             f'{order} distortion coefficient{"s" if order != 1 else ""}')
         layout = top.with_order(order)
-        x0 = x if order == orders[-1] else _truncated_start(layout, top.camera(x))
+        x0 = x if order == orders[-1] else truncated_start(layout, top.camera(x), layout.theta_max)
         problem, sol = solve(layout, term.copy(), x0)
         fits[order] = (layout, problem, sol)
         score[order] = 2.0 * sol.cost + (3 + order) * ORDER_PENALTY

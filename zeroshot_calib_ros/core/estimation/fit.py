@@ -64,14 +64,14 @@ class LineFit:
     top_solution: Optional[ProblemSolution] = None
 
 
-def estimate_sigma(term: StraightnessTerm, camera, parameters: int) -> float:
-    """Noise sigma (px) of the curves' points: sum of squared distances over the degrees of
-    freedom (one per point, less two per curve for its plane and the camera's parameters)."""
-    r = term.point_residuals(camera)
-    d2 = np.sum(r * r, axis=1)
-    d2 = d2[np.isfinite(d2)]
-    dof = max(len(d2) - 2 * len(term) - parameters, 1)
-    return max(float(math.sqrt(np.sum(d2) / dof)), MIN_SIGMA_PX)
+def estimate_sigma(term, camera, parameters: int, floor: float = MIN_SIGMA_PX) -> float:
+    """Noise sigma (px) of a term's points: the sum of their squared distances
+    (``term.squared_distances``) over the degrees of freedom (``term.noise_dof``: for curves one per
+    point less two per curve for its plane, for board corners two per corner less each view's
+    eliminated numbers) less the camera's ``parameters``, at least 1; at least ``floor``."""
+    d2 = term.squared_distances(camera)
+    dof = max(term.noise_dof(len(d2)) - parameters, 1)
+    return max(float(math.sqrt(np.sum(d2) / dof)), floor)
 
 
 def _outliers(rms: np.ndarray, sigma: float) -> np.ndarray:
@@ -82,14 +82,18 @@ def _outliers(rms: np.ndarray, sigma: float) -> np.ndarray:
     return ~(rms <= threshold)
 
 
-def _truncated_start(layout: KannalaBrandtLayout, camera: KannalaBrandtCamera) -> np.ndarray:
+def truncated_start(layout: KannalaBrandtLayout, camera: KannalaBrandtCamera,
+                    theta_max: Optional[float] = None) -> np.ndarray:
     """Start of a lower order: f and the principal point of ``camera``, and the deviations that
-    follow its theta_d best (linear least squares over the field)."""
+    follow its theta_d best (linear least squares over the field: 0 to ``theta_max``, by default
+    ``camera``'s largest field angle, or its base's)."""
     x0 = layout.x_from(camera)
     if layout.order:
-        top = camera.max_field_angle()
-        top = top if math.isfinite(top) and top > 0 else layout.base.max_field_angle()
-        theta = np.linspace(0.0, top if math.isfinite(top) and top > 0 else 1.0, 64)
+        if theta_max is None:
+            top = camera.max_field_angle()
+            top = top if math.isfinite(top) and top > 0 else layout.base.max_field_angle()
+            theta_max = top if math.isfinite(top) and top > 0 else 1.0
+        theta = np.linspace(0.0, theta_max, 64)
         with np.errstate(invalid='ignore', over='ignore'):
             target = camera.theta_d(theta) - layout.base.theta_d(theta)
         ok = np.isfinite(target)
@@ -147,7 +151,7 @@ def fit_lines(term: StraightnessTerm, priors: List, base: KannalaBrandtCamera,
     penalty = ORDER_PENALTY if ORDER_PENALTY is not None else math.log(max(n_points, 2))
     for order in reversed(orders):
         layout = top.with_order(order)
-        x0 = x if order == orders[-1] else _truncated_start(layout, top.camera(x))
+        x0 = x if order == orders[-1] else truncated_start(layout, top.camera(x))
         problem, solution = _solve(layout, sub, priors, x0, max_nfev)
         fits[order] = (layout, problem, solution)
         bic[order] = 2.0 * solution.cost + (3 + order) * penalty

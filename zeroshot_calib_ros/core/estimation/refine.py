@@ -52,16 +52,15 @@ from typing import Callable, Dict, List, Optional, Sequence
 
 import numpy as np
 
-from ..lens.fitting import fit_kannala_brandt
 from ..lens.models import KannalaBrandtCamera
 from ..lines.straightness import StraightnessTerm, curve_image, curve_points
-from ..zeroshot.solver import solve_zero_shot
 from ..zeroshot.spec import CameraSpec
 from .fit import SOLVE_TOL, LineFit, fit_lines
 from .problem import Problem, jacobian_threads
 from .terms import FOV_TOLERANCE_DEG, SHAPE_SIGMA, FovTerm, ImageCircleTerm, PrincipalPointPrior, ShapePrior
 from .uncertainty import (Uncertainty, displacement, image_circle_radius, pixel_grid, probability_other_is_better,
-                          problem_uncertainty, zero_shot_uncertainty)
+                          problem_uncertainty)
+from .zero_shot import zero_shot_camera, zero_shot_start  # noqa: F401 (zero_shot_camera: its callers' import)
 
 MIN_LINES = 8
 MIN_POINTS = 6
@@ -201,15 +200,6 @@ class Refinement:
         return self.refined_uncertainty if self.accepted else self.zero_shot_uncertainty
 
 
-def zero_shot_camera(spec: CameraSpec, width: int, height: int, solution=None) -> KannalaBrandtCamera:
-    """The zero-shot camera ('auto') fitted to Kannala-Brandt k1..k4, at width x height."""
-    solution = solve_zero_shot(spec, 'auto') if solution is None else solution
-    camera = fit_kannala_brandt(solution.camera).camera
-    if (width, height) != (spec.width, spec.height):
-        camera = camera.scaled(width, height)
-    return camera
-
-
 def _prepare(curves: Sequence, width: int, height: int):
     """(kept curve arrays, their indices into ``curves``, their image ids)."""
     kept, index, images = [], [], []
@@ -285,7 +275,9 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     one image), from images of ``width`` x ``height`` (default the spec's;
     another size of the same aspect is a binned or resized mode). ``initial``: a camera to start
     from (e.g. an earlier refinement); the zero-shot camera stays the reference of the gate.
-    ``solution``: the zero-shot solution if already computed. ``image_circle``: the image circle
+    ``solution``: the zero-shot solution if already computed, or the spec's whole zero-shot result
+    at this size and tolerance (a ``zero_shot.ZeroShotStart``: then nothing of the spec is computed
+    again). ``image_circle``: the image circle
     measured in the images (``core.lines.image_region.ImageCircle``), evidence of the principal
     point and, with the spec's circle FOV, of the scale (``circle_term``)."""
     width = spec.width if width is None else int(width)
@@ -293,9 +285,8 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     if abs(width * spec.height - height * spec.width) > 0.01 * spec.width * spec.height:
         raise ValueError(f'images are {width}x{height} but the spec is {spec.width}x{spec.height}: '
                          'not the same aspect ratio')
-    solution = solve_zero_shot(spec, 'auto') if solution is None else solution
-    zs = zero_shot_camera(spec, width, height, solution)
-    zs_u = zero_shot_uncertainty(spec, fov_tolerance_deg, solution)
+    start = zero_shot_start(spec, width, height, fov_tolerance_deg, solution)
+    zs, zs_u = start.camera, start.uncertainty
     scale = width / spec.width
     zs_u_px = None if zs_u.rms_px is None else zs_u.rms_px * scale
     warnings = [zs_u.warning] if zs_u.warning else []
@@ -647,7 +638,7 @@ def refine_from_frames(spec: CameraSpec, curves: Sequence, images, width: int, h
     across them (``core.lines.static_curves``: the vehicle's or robot's own body in view, lens
     dirt) left out of the fit and listed in ``Refinement.static_curves``. ``images``: the frames,
     indexed by the curves' ``image``. What ``refine_from_images`` and the node's refine worker
-    both fit."""
+    both fit. ``solution``: as ``refine_camera``'s."""
     from ..lines.static_curves import static_curves
     static = static_curves(curves, images)
     result = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,
@@ -659,7 +650,7 @@ def refine_from_frames(spec: CameraSpec, curves: Sequence, images, width: int, h
 def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: float = FOV_TOLERANCE_DEG,
                        rounds: int = 2, workers: int = 1, regions: Optional[Sequence] = None,
                        use_image_circle: bool = True, progress: Optional[Callable[[RefineProgress], None]] = None,
-                       **detect_options) -> Refinement:
+                       solution=None, **detect_options) -> Refinement:
     """Detect curves in ``images`` (grey or BGR arrays, all one size) with the zero-shot camera,
     fit, make curves again of the same edge points under the refined camera (``find_edges`` once,
     ``curves_from_edges`` per round) and fit again (``rounds`` fits in all).
@@ -679,7 +670,12 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     fit (``Refinement.static_curves``).
 
     ``progress``: called with a ``RefineProgress`` after each image's detection and after each
-    fit (in the calling thread, whatever ``workers``); what it does changes nothing here."""
+    fit (in the calling thread, whatever ``workers``); what it does changes nothing here.
+
+    The spec's zero-shot result (``zero_shot.zero_shot_start``: the solution, its Kannala-Brandt
+    camera at the images' size, its error bar) is made once, from ``solution`` when given (a
+    ``ZeroShotSolution``, or a ``ZeroShotStart`` of the images' size and ``fov_tolerance_deg``), and
+    passed to every round's fit."""
     from ..lines.detect import curves_from_edges, find_edges, make_views
     from ..lines.image_region import combine_circles, find_image_region
     images = list(images)
@@ -695,8 +691,8 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
         raise ValueError(f'{len(regions)} regions for {len(images)} images')
     circle = combine_circles([r.circle for r in regions])
     measured_in = sum(r.circle is not None for r in regions)
-    solution = solve_zero_shot(spec, 'auto')
-    camera = zero_shot_camera(spec, width, height, solution)
+    start = zero_shot_start(spec, width, height, fov_tolerance_deg, solution)
+    camera = start.camera
     result = None
     total_rounds = max(1, rounds)
     edges = [None] * len(images)
@@ -730,7 +726,7 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
                 detected(done)
         with jacobian_threads(workers):
             attempt = refine_from_frames(spec, curves, images, width, height, fov_tolerance_deg,
-                                         initial=camera if result is not None else None, solution=solution,
+                                         initial=camera if result is not None else None, solution=start,
                                          image_circle=circle if use_image_circle else None)
         attempt.image_circle, attempt.circle_measured_in = circle, measured_in
         if progress is not None:

@@ -169,6 +169,17 @@ class StraightnessTerm:
         term.sigma = float(sigma)
         return term
 
+    def squared_distances(self, camera: CameraModel) -> np.ndarray:
+        """Squared distance (px^2) of every point with a ray under ``camera`` from its line's image."""
+        r = self.point_residuals(camera)
+        d2 = np.sum(r * r, axis=1)
+        return d2[np.isfinite(d2)]
+
+    def noise_dof(self, points: int) -> int:
+        """Degrees of freedom of ``points`` such distances beside the camera: one a point, less two a
+        curve (its plane)."""
+        return points - 2 * len(self)
+
     def point_residuals(self, camera: CameraModel) -> np.ndarray:
         """(N, 2) observed minus re-projected pixels, NaN where the camera has no ray."""
         rays = camera.unproject(self.points)
