@@ -7,7 +7,7 @@ import struct
 import numpy as np
 import pytest
 
-from zeroshot_calib_ros.core.ros_data.cdr_image import (CdrError, NotPlainCdr, SerializedImage, image_prefix,
+from zeroshot_calib_ros.core.ros_formats.cdr_image import (CdrError, NotPlainCdr, SerializedImage, image_prefix,
                                                         parse_image, patch_stamp, pixel_bytes,
                                                         serialize_camera_info, serialize_image)
 

@@ -11,7 +11,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo, Image
 
 from ros_peer import diagnostics_value, domain_id, image_msg, peer, qos, start_node  # noqa: F401
-from zeroshot_calib_ros.core.ros_data.image_frames import ENCODINGS
+from zeroshot_calib_ros.core.streaming.image_frames import ENCODINGS
 
 SPEC = ['-p', 'width:=64', '-p', 'height:=36', '-p', 'hfov:=118', '-p', 'vfov:=69', '-p', 'rectify:=true']
 RELIABLE = qos(ReliabilityPolicy.RELIABLE, depth=100)
@@ -204,7 +204,7 @@ def test_the_benchmarks_remap_relay_publishes_the_nodes_camera_info_then_the_rec
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'benchmarks'))
     import bench_common
     import relay_node
-    from zeroshot_calib_ros.core.ros_data.cdr_image import SerializedImage
+    from zeroshot_calib_ros.core.ros_formats.cdr_image import SerializedImage
     from zeroshot_calib_ros.ros.messages import fill_camera_info
 
     published = []

@@ -39,7 +39,7 @@ import numpy as np  # noqa: E402
 from . import __version__  # noqa: E402
 
 from .core.checkerboard.calibration import as_solution, calibrate
-from .core.ros_data.calibration_file import (DISTORTION_MODELS, FORMATS, CalibrationFileError, CameraCalibration,
+from .core.ros_formats.calibration_file import (DISTORTION_MODELS, FORMATS, CalibrationFileError, CameraCalibration,
                                     MAX_FILE_BYTES, json_safe, solution_summary, stand_in_note, summary_text)
 from .core.file_input import MAX_IMAGE_PIXELS, InputFileError, read_capped, read_image
 from .core.lens.models import RadialCamera, camera_from_calibration
@@ -48,7 +48,7 @@ from .core.checkerboard.evaluation import evaluate, evaluation_to_dict, format_t
 from .core.estimation.terms import FOV_TOLERANCE_DEG
 from .core.lens.fitting import DISTORTION_FITS, FIT_WARNING_PX
 from .core.zeroshot.presets import load_presets, spec_with_preset
-from .core.ros_data.rectify import INTERPOLATIONS, Rectifier, new_camera_matrix, principal_point_camera_matrix
+from .core.ros_formats.rectify import INTERPOLATIONS, Rectifier, new_camera_matrix, principal_point_camera_matrix
 from .core.zeroshot.solver import PROJECTION_CHOICES, NoConvergence, solve_zero_shot
 from .core.zeroshot.spec import CameraSpec, SpecError
 
@@ -1054,7 +1054,7 @@ def _calibrate_report(args, corners, used_views, camera, summary, **fields):
 
 def _calibrated_P(calibration, camera, args):
     """``calibration`` with P centred on the calibrated principal point, as ROS camera_calibration
-    writes it for a fisheye (core/ros_data/rectify.principal_point_camera_matrix)."""
+    writes it for a fisheye (core/ros_formats/rectify.principal_point_camera_matrix)."""
     P = np.hstack([principal_point_camera_matrix(camera, args.balance, args.fov_scale), np.zeros((3, 1))])
     return dataclasses.replace(calibration, P=P)
 

@@ -27,7 +27,7 @@ subscribes is in force at once (no maps to wait for). The start-up log and /diag
 say which state the node is in.
 
 Frames (issue 14) are taken as the serialized bytes DDS delivered (``raw=True``): the Image header
-is parsed in place (``core/ros_data/cdr_image.py``), the pixels are viewed without a copy, remapped
+is parsed in place (``core/ros_formats/cdr_image.py``), the pixels are viewed without a copy, remapped
 into a reused buffer laid out as the serialized image_rect, and published as bytes, as is a
 serialized CameraInfo whose stamp is patched. Frames that reader does not decode exactly as the
 ROS deserializer would (another CDR encapsulation, unusual strings) are deserialized and take the
@@ -68,16 +68,16 @@ from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 from sensor_msgs.srv import SetCameraInfo  # noqa: E402
 
 from ..core.lens.fitting import FIT_WARNING_PX  # noqa: E402
-from ..core.ros_data.calibration_file import (CalibrationFileError, CameraCalibration,  # noqa: E402
+from ..core.ros_formats.calibration_file import (CalibrationFileError, CameraCalibration,  # noqa: E402
                                               resolve_camera_info_url, summary_text)
-from ..core.ros_data.cdr_image import (CdrError, NotPlainCdr, SerializedImage, parse_image,  # noqa: E402
+from ..core.ros_formats.cdr_image import (CdrError, NotPlainCdr, SerializedImage, parse_image,  # noqa: E402
                                        patch_stamp, pixel_bytes)
-from ..core.ros_data.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded,  # noqa: E402
+from ..core.streaming.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded,  # noqa: E402
                                           binned_roi_size, binning_or_roi_reason, check_frame,
                                           check_map_budget, default_map_budget, image_array, map_bytes)
-from ..core.ros_data.heap import keep_frames_in_heap, resident_bytes  # noqa: E402
-from ..core.ros_data.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
-from ..core.ros_data.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
+from ..core.streaming.heap import keep_frames_in_heap, resident_bytes  # noqa: E402
+from ..core.streaming.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
+from ..core.streaming.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
                                              RECTIFICATION_PARAMETERS, Settings, changed_parameters,
                                              number_in_range, params_file_errors, solve_from_settings,
                                              unknown_parameter_warnings,
@@ -993,7 +993,7 @@ class ZeroShotCalibNode(Node):
             refiner.stop('the spec changed')
         # imported here: its worker process, pickling and Kannala-Brandt fitting are not what a
         # node with refine off (the default) should import before its first CameraInfo
-        from ..core.ros_data.online_refinement import OnlineRefiner
+        from ..core.streaming.online_refinement import OnlineRefiner
 
         initial, reference = self._refined if active.source == 'refined' and self._refined else (None, None)
         self._refiner = OnlineRefiner(self._settings.spec, self._refine_interval, initial=initial,
@@ -1050,7 +1050,7 @@ class ZeroShotCalibNode(Node):
         width, height = basis.calibration.width, basis.calibration.height
         settings = self._settings
         s = result.status
-        from ..core.ros_data.online_refinement import px_text as px, refined_calibration_and_fit
+        from ..core.streaming.online_refinement import px_text as px, refined_calibration_and_fit
 
         try:
             # in the configured distortion model (plumb_bob fitted to the refined lens, with its error)
