@@ -70,11 +70,12 @@ from sensor_msgs.srv import SetCameraInfo  # noqa: E402
 from ..core.lens.fitting import FIT_WARNING_PX  # noqa: E402
 from ..core.ros_formats.calibration_file import (CalibrationFileError, CameraCalibration,  # noqa: E402
                                               resolve_camera_info_url, summary_text)
-from ..core.ros_formats.cdr_image import (CdrError, NotPlainCdr, SerializedImage, parse_image,  # noqa: E402
-                                       patch_stamp, pixel_bytes)
+from ..core.ros_formats.cdr_image import CdrError, NotPlainCdr, parse_image, pixel_bytes  # noqa: E402
+from ..core.streaming.diagnostics import (calibration_status, frame_path_text, rectify_text,  # noqa: E402
+                                          refine_values)
+from ..core.streaming.frame_path import FramePath  # noqa: E402
 from ..core.streaming.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded,  # noqa: E402
-                                          binned_roi_size, binning_or_roi_reason, check_frame,
-                                          check_map_budget, default_map_budget, image_array, map_bytes)
+                                          binning_or_roi_reason, default_map_budget, image_array)
 from ..core.streaming.heap import keep_frames_in_heap, resident_bytes  # noqa: E402
 from ..core.streaming.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
 from ..core.streaming.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
@@ -101,7 +102,6 @@ wait for the reply anyway) so that its "success" means in force; a larger calibr
 answered as accepted, with its maps being built, and saved when it is in force."""
 FRAME_PATH_ENV = 'ZEROSHOT_CALIB_FRAME_PATH'
 """'serialized' (the default) or 'message': how frames are taken and published (see the module)."""
-_INFO_TEMPLATES_CACHED = 16
 FIRST_FRAME_WAIT_SECONDS = 0.25
 """How long a frame waits for the maps being built because image_rect just got a subscriber (so
 that the first frame after a subscriber appears is rectified): 1080p maps took 0.19-0.58 s on
@@ -160,7 +160,6 @@ class ZeroShotCalibNode(Node):
             self._log('warning', text)
         self._stats = Counter()
         self._warned_at = {}
-        self._uncalibrated = None  # (size, why) while frames come that no calibration describes
         self._last_image_time = None  # time.monotonic() of the last frame
         # Until an image publisher is seen: reliable CameraInfo (what late joiners and the
         # default subscriber QoS want), best-effort image_raw (accepts either kind of publisher).
@@ -170,14 +169,12 @@ class ZeroShotCalibNode(Node):
         self._rect_subscribers = 0  # image_rect's matched subscriptions, as last read
         self._rect_ever_subscribed = False
         self._ahead_jobs = []  # MapJobs of the maps built when image_rect got a subscriber
-        self._last_size = None  # (width, height) of the last frame that got a CameraInfo
-        self._failed_maps = {}  # (id(active), width, height) -> (active, why) of maps that failed to build
         self._out_buffer = None
         self._rect_msg = Image()
         self._info_cache = (None, None)  # (calibration, its CameraInfo), reused frame after frame
         self._serialized, self._frame_path_reason = frame_path_choice()
-        self._rect_serialized = SerializedImage()  # image_rect, reused frame after frame
-        self._info_templates = {}  # (id(calibration), frame_id) -> (calibration, serialized CameraInfo)
+        # the frame path's state: last frame size, uncalibrated frames, failed maps, reused buffers
+        self._frames = FramePath(serialized_camera_info)
         self._maps_build_ms = float('nan')
         self._reverting = False
 
@@ -340,19 +337,10 @@ class ZeroShotCalibNode(Node):
         ])
 
     def _rectify_text(self) -> str:
-        """'off', 'on, lazy: no subscriber yet', 'on, lazy: no subscriber', 'on: 1 subscriber'."""
-        if not self._active.rectify_enabled:
-            return 'off'
-        count = self._rect_subscribers
-        if count:
-            return f'on: {count} subscriber{"s" if count > 1 else ""}'
-        return 'on, lazy: no subscriber' + ('' if self._rect_ever_subscribed else ' yet')
+        return rectify_text(self._active.rectify_enabled, self._rect_subscribers, self._rect_ever_subscribed)
 
     def _frame_path_text(self) -> str:
-        if self._serialized:
-            return ('serialized: image_raw taken as CDR bytes, image_rect and camera_info published as bytes'
-                    + (f' ({self._frame_path_reason})' if self._frame_path_reason else ''))
-        return f'message: sensor_msgs/Image objects ({self._frame_path_reason})'
+        return frame_path_text(self._serialized, self._frame_path_reason)
 
     def _create_endpoints(self):
         """Publishers and subscription with the reliability of the image publisher (see housekeeping)."""
@@ -420,16 +408,7 @@ class ZeroShotCalibNode(Node):
         if not active.rectify_enabled or binning_or_roi_reason(active.calibration):
             return []
         self._ahead_jobs = [job for job in self._ahead_jobs if not job.finished.is_set()]
-        self._failed_maps.clear()  # tried again for the new subscriber
-        sizes = [active.size]
-        if self._last_size is not None and self._last_size != active.size:
-            width, height = self._last_size
-            try:
-                active.calibration_for(width, height)
-                check_map_budget(width, height, self._map_budget_bytes - map_bytes(*active.size))
-                sizes.append(self._last_size)
-            except (FrameSkipped, MapBudgetExceeded):
-                pass  # its frames say why when they come
+        sizes = self._frames.ahead_sizes(active, self._map_budget_bytes)
         building = []
         for width, height in sizes:
             if active.rectifier_for(width, height) is None:
@@ -518,7 +497,7 @@ class ZeroShotCalibNode(Node):
         calibration = self._frame_calibration(active, width, height, header.step, header.encoding, header.data_size)
         if calibration is None:
             return
-        publish_serialized(self._info_pub, self._serialized_info_for(calibration, header))
+        publish_serialized(self._info_pub, self._frames.serialized_info(calibration, header))
         self._stats['camera_info_published'] += 1
         if self._refiner is not None:  # raw is an immutable bytes object: its pixels are held, not copied
             self._offer_frame(pixel_bytes(raw, header), width, height, header.step, header.encoding,
@@ -551,29 +530,14 @@ class ZeroShotCalibNode(Node):
                            nbytes: int) -> Optional[CameraCalibration]:
         """The calibration of a frame, or None (skipped and counted)."""
         try:
-            # the same checks whatever rectify is: no CameraInfo for an image the message lacks
-            check_frame(width, height, step, encoding, nbytes)
-            if binning_or_roi_reason(active.calibration):
-                # CameraInfo as given (binning and roi tell consumers how the frame maps); no scaling
-                calibration = active.calibration
-                if (width, height) != binned_roi_size(calibration):
-                    raise FrameSkipped('aspect', f'image {width}x{height} is not the {"x".join(map(str, binned_roi_size(calibration)))} '
-                                       'that the calibration\'s binning and roi describe')
-            else:
-                calibration = active.calibration_for(width, height)
-            self._uncalibrated = None
-            self._last_size = (width, height)
-            return calibration
+            return self._frames.calibration(active, width, height, step, encoding, nbytes)
         except FrameSkipped as exc:
             if exc.reason == 'aspect':  # said for each size (throttled), and an ERROR in /diagnostics
-                self._uncalibrated = ((width, height), str(exc))
                 if len(self._warned_at) > _WARNED_KEYS_KEPT:  # a stream of ever new sizes
                     self._warned_at.clear()
                 self._skip(exc, key=f'aspect {width}x{height}')
             else:
                 self._skip(exc)
-        except Exception as exc:  # never let a frame take the node down
-            self._skip(FrameSkipped('error', f'cannot calibrate frame: {exc}'))
         return None
 
     def _frame_rectifier(self, active: ActiveCalibration, calibration: CameraCalibration, width: int, height: int):
@@ -597,24 +561,11 @@ class ZeroShotCalibNode(Node):
     def _request_maps(self, active: ActiveCalibration, calibration: CameraCalibration, width: int, height: int):
         """A frame whose maps are not built: skipped (counted) while the builder builds them, so
         that one frame of a new size never stalls the stream."""
-        reason = binning_or_roi_reason(calibration)
-        if reason:
-            raise FrameSkipped('binning_roi', reason)
-        failed = self._failed_maps.get((id(active), width, height))
-        if failed is not None and failed[0] is active:
-            raise FrameSkipped('maps_failed', f'rectification maps of {width}x{height} could not be built '
-                               f'({failed[1]}); frames of that size are not rectified')
-        if (width, height) != active.size:
-            try:
-                check_map_budget(width, height, self._map_budget_bytes - map_bytes(*active.size),
-                                 what='rectification maps of this frame size (beside the configured size)')
-            except MapBudgetExceeded as exc:
-                raise FrameSkipped('maps_budget', str(exc)) from None
+        self._frames.check_maps_request(active, calibration, width, height, self._map_budget_bytes)
         # (the configured size's maps too, when they are missing: being built since image_rect got
         # a subscriber, the request returns that build)
         self._builder.request_size(active, width, height)
-        raise FrameSkipped('maps_pending', f'rectification maps of {width}x{height} are being built; '
-                           'frames of that size are not rectified until they are ready')
+        raise self._frames.maps_pending(width, height)
 
     def _camera_info_for(self, calibration: CameraCalibration) -> CameraInfo:
         """The CameraInfo of ``calibration``, filled once and reused (only the header changes;
@@ -626,29 +577,8 @@ class ZeroShotCalibNode(Node):
             self._info_cache = (calibration, info)
         return info
 
-    def _serialized_info_for(self, calibration: CameraCalibration, header) -> bytearray:
-        """The serialized CameraInfo of ``calibration`` with the frame's header: a template per
-        calibration and frame_id, built once; only the stamp is written frame after frame
-        (publishing copies the bytes before it returns)."""
-        key = (id(calibration), header.frame_id)
-        cached = self._info_templates.get(key)
-        if cached is None or cached[0] is not calibration:
-            if len(self._info_templates) >= _INFO_TEMPLATES_CACHED:
-                self._info_templates.clear()
-            cached = self._info_templates[key] = (calibration, serialized_camera_info(calibration, header.frame_id))
-        template = cached[1]
-        patch_stamp(template, header.sec, header.nanosec)
-        return template
-
     def _publish_rectified_serialized(self, raw: bytes, header, rectifier):
-        """The pixels viewed in ``raw`` (no copy) are remapped into the buffer of the serialized
-        image_rect, which is published as it is."""
-        image = image_array(pixel_bytes(raw, header), header.width, header.height, header.step, header.encoding,
-                            header.is_bigendian)
-        out = self._rect_serialized.prepare(header.sec, header.nanosec, header.frame_id, header.encoding,
-                                            image.shape, image.dtype)
-        rectifier.rectify(image, out=out)
-        publish_serialized(self._rect_pub, self._rect_serialized.buffer)
+        publish_serialized(self._rect_pub, self._frames.rectified_serialized(raw, header, rectifier))
         self._stats['frames_rectified'] += 1
 
     def _publish_rectified(self, msg: Image, rectifier):
@@ -716,37 +646,20 @@ class ZeroShotCalibNode(Node):
             self._create_endpoints()
 
     def _publish_diagnostics(self):
-        status = DiagnosticStatus(level=DiagnosticStatus.OK, name=f'{self.get_name()}: calibration',
-                                  hardware_id=self._active.calibration.camera_name,
-                                  message=f'calibration from {self._active.source}')
+        if self._frames.uncalibrated is not None and not self._camera_exists():
+            self._frames.uncalibrated = None  # the camera has stopped
         pending = self._builder.pending
-        values = {'source': self._active.source, 'generation': self._active.generation,
-                  'frame_path': 'serialized' if self._serialized else f'message ({self._frame_path_reason})',
-                  'executor': self._executor_text,
-                  'rectify': self._rectify_text(), 'image_rect_subscribers': self._rect_subscribers,
-                  'frames_rectified': 0, 'frames_not_rectified_no_subscriber': 0,
-                  'fx': self._active.calibration.K[0, 0], 'qos_reliability': self._reliability.name,
-                  'pending_generation': pending.active.generation if pending else '',
-                  'maps_build_ms': f'{self._maps_build_ms:.1f}',
-                  'map_memory_mb': f'{self._active.map_memory_bytes / 2**20:.1f}',
-                  'frame_buffer_mb': f'{self._active.frame_buffer_bytes / 2**20:.1f}',
-                  'process_rss_mb': f'{resident_bytes() / 2**20:.1f}', **self._refine_values_text(),
-                  **self._stats}
-        if values['refine_state'] == 'failed':
-            status.level = DiagnosticStatus.WARN
-        if self._active.spec_warnings:  # a calibration from a spec whose FOVs it does not show
-            status.level = DiagnosticStatus.WARN
-            status.message += ": the spec's FOVs do not fit the image (spec_warning)"
-            values['spec_warning'] = ' | '.join(self._active.spec_warnings)
-        if self._active.assumption:  # usable, only less certain: said, not a WARN level
-            values['assumption'] = self._active.assumption
-        if self._uncalibrated is not None and not self._camera_exists():
-            self._uncalibrated = None  # the camera has stopped
-        if self._uncalibrated is not None:
-            (width, height), why = self._uncalibrated
-            status.level = DiagnosticStatus.ERROR
-            status.message = f'no CameraInfo for the {width}x{height} frames: {why}'
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        refiner = self._refiner
+        state = calibration_status(
+            self.get_name(), self._active, serialized=self._serialized, frame_path_reason=self._frame_path_reason,
+            executor=self._executor_text, rectify=self._rectify_text(), rect_subscribers=self._rect_subscribers,
+            qos_reliability=self._reliability.name, pending_generation=pending.active.generation if pending else '',
+            maps_build_ms=self._maps_build_ms, process_rss_bytes=resident_bytes(),
+            refine=refine_values(refiner.status.values() if refiner is not None else None, self._refine_off),
+            stats=self._stats, uncalibrated=self._frames.uncalibrated)
+        status = DiagnosticStatus(level=getattr(DiagnosticStatus, state.level), name=state.name,
+                                  hardware_id=state.hardware_id, message=state.message,
+                                  values=[KeyValue(key=k, value=str(v)) for k, v in state.values.items()])
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
         self._diagnostics_pub.publish(msg)
@@ -857,7 +770,7 @@ class ZeroShotCalibNode(Node):
             if job.size is not None:
                 if job.error is not None:
                     self._stats['size_maps_failed'] += 1
-                    self._failed_maps[(id(job.active), *job.size)] = (job.active, str(job.error))
+                    self._frames.maps_failed(job.active, job.size, str(job.error))
                     self.get_logger().warning(f'rectification maps of {job.size[0]}x{job.size[1]} not built: '
                                               f'{job.error}; frames of that size stay unrectified')
                 else:
@@ -907,7 +820,7 @@ class ZeroShotCalibNode(Node):
         if job.active.generation <= self._active.generation:
             return  # superseded while it was built
         self._active = job.active
-        self._failed_maps.clear()
+        self._frames.failed_maps.clear()
         if job.values is not None:
             self._values_in_force = job.values
         self._stats['calibrations_adopted'] += 1
@@ -1090,18 +1003,6 @@ class ZeroShotCalibNode(Node):
         self._refined = (result.camera, s.uncertainty_px)
         self._adopt(active, f'refined calibration adopted (generation {active.generation}, source refined), '
                     f'{saved}')
-
-    def _refine_values_text(self) -> dict:
-        refiner = self._refiner
-        if refiner is None:
-            return {'refine_state': 'off', 'refine_reason': self._refine_off}
-        values = refiner.status.values()
-        return {'refine_state': values['state'], 'refine_reason': values['reason'],
-                'refine_frames': values['frames_processed'], 'refine_adopted': values['cameras_offered'],
-                'refine_lines': values['lines'],
-                'refine_coverage': values['coverage'], 'refine_residual_px': values['residual_px'],
-                'refine_uncertainty_px': values['uncertainty_px'],
-                'refine_zero_shot_uncertainty_px': values['zero_shot_uncertainty_px']}
 
     def _on_set_camera_info(self, request, response):
         """As camera drivers offer it to cameracalibrator: validated whole (plausibility, and the
