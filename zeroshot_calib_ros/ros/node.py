@@ -67,9 +67,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 from sensor_msgs.srv import SetCameraInfo  # noqa: E402
 
-from ..core.lens.fitting import FIT_WARNING_PX  # noqa: E402
 from ..core.ros_formats.calibration_file import (CalibrationFileError, CameraCalibration,  # noqa: E402
                                               resolve_camera_info_url, summary_text)
+from ..core.streaming.calibration_cycle import (REFINABLE_SOURCES, CalibrationCycle,  # noqa: E402
+                                               refinement_texts, summary_warnings)
 from ..core.ros_formats.cdr_image import CdrError, NotPlainCdr, parse_image, pixel_bytes  # noqa: E402
 from ..core.streaming.diagnostics import (calibration_status, frame_path_text, rectify_text,  # noqa: E402
                                           refine_values)
@@ -80,7 +81,7 @@ from ..core.streaming.heap import keep_frames_in_heap, resident_bytes  # noqa: E
 from ..core.streaming.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
 from ..core.streaming.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
                                              RECTIFICATION_PARAMETERS, Settings, changed_parameters,
-                                             number_in_range, params_file_errors, solve_from_settings,
+                                             number_in_range, params_file_errors,
                                              unknown_parameter_warnings,
                                              usage_text)
 from ..core.zeroshot.solver import NoConvergence  # noqa: E402
@@ -109,8 +110,6 @@ every core of a 2-core machine busy with other jobs, 640x360 maps 0.06-0.09 s. B
 the frames queued behind it (image_raw keeps 10) are not lost; the frames that come while maps
 take longer are counted as maps_pending and not rectified."""
 REFINE_PARAMETERS = ('refine', 'refine_interval')
-REFINABLE_SOURCES = ('spec', 'refined')
-"""Sources of a calibration that ``refine`` refines (never a file's or set_camera_info's)."""
 
 
 def frame_path_choice(environ=os.environ) -> tuple:
@@ -183,27 +182,22 @@ class ZeroShotCalibNode(Node):
         self._map_budget_why = 'as set'
         if not self._map_budget:
             self._map_budget, self._map_budget_why = default_map_budget()
-        self._save_when_in_force = None  # (calibration, generation) of set_camera_info, saved once in force
         settings = Settings.from_values(self._values())
         self._settings = settings
         self._refine, self._refine_interval = self._refine_values(self._values())
         self._refiner = None  # an online_refinement.OnlineRefiner while refine is on
-        # (Kannala-Brandt camera, uncertainty px) of the last refinement adopted: a restarted
-        # refiner starts from it and must beat it (0.7x), while a refined calibration is in force
-        self._refined = None
         self._refine_off = 'refine is false'  # why no refiner runs (diagnostics)
         url = self.get_parameter('camera_info_url').value
-        self._url_path = resolve_camera_info_url(url, settings.camera_name)
+        # which calibration is in force, the newest accepted, pending saves, the last refinement
+        self._cycle = CalibrationCycle(resolve_camera_info_url(url, settings.camera_name), self._map_budget_bytes)
         # The calibration is in force at once (CameraInfo needs no maps); its maps are built on
         # the builder thread, and frames that come before they are ready are not rectified.
         try:
-            self._active = self._initial_calibration(settings)
+            self._cycle.start(settings, self._log)
         except Exception:
             self._flush_startup_log()  # what was said before the failure
             raise
-        self._values_in_force = self._values()
-        self._newest = self._active  # the last calibration accepted (in force or being built)
-        self._generation = self._active.generation
+        self._cycle.values_in_force = self._values()
         self._create_info_publisher()
         # One at start-up whatever the camera does: transient local then holds a calibration for
         # late joiners even if a camera exists but has not sent a frame yet.
@@ -225,7 +219,7 @@ class ZeroShotCalibNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._flush_startup_log()
         self.get_logger().info(self._interfaces_text())
-        self._follow_with_refiner(self._active)
+        self._follow_with_refiner(self._cycle.active)
 
     def _flush_startup_log(self):
         startup_log, self._startup_log = self._startup_log, None
@@ -260,59 +254,6 @@ class ZeroShotCalibNode(Node):
             values[p.name] = p.value
         return values
 
-    def _initial_calibration(self, settings: Settings) -> ActiveCalibration:
-        path = self._url_path
-        self._file_state = f'none at {path} yet: set_camera_info will save there'
-        if os.path.isfile(path):
-            try:
-                calibration = CameraCalibration.load(path)
-                active = ActiveCalibration(calibration, calibration.camera(), f'file {path}', 0,
-                                           settings.rectify, settings.interpolation, build_maps=False,
-                                           map_budget_bytes=self._map_budget_bytes)
-            except (CalibrationFileError, ValueError) as exc:
-                self._log('error', f'ignoring camera_info_url {path}: {exc}; solving from the spec '
-                          'instead (set_camera_info will overwrite the file)')
-                self._file_state = f'{path} unreadable ({exc}): set_camera_info will overwrite it'
-            else:
-                for warning in getattr(calibration, 'load_warnings', ()):
-                    self._log('warning', f'{path}: {warning}')
-                self._warn_if_file_differs(calibration, settings, path)
-                self._log(
-                    'info', f'calibration loaded from {path} (takes precedence over the spec):\n'
-                    f'  {calibration.width} x {calibration.height} px, camera_name {calibration.camera_name}\n'
-                    f'  K {calibration.K.tolist()}\n  {calibration.distortion_model} D {calibration.D.tolist()}')
-                self._file_state = f'loaded {path}; set_camera_info saves there'
-                return active
-        active, summary = solve_from_settings(settings, 0, build_maps=False, map_budget_bytes=self._map_budget_bytes)
-        self._log('info', 'zero-shot calibration from the spec sheet:\n' + summary_text(summary))
-        self._warn_spec(summary)
-        self._warn_fit(summary)
-        return active
-
-    def _warn_if_file_differs(self, calibration: CameraCalibration, settings: Settings, path: str):
-        spec = settings.spec
-        if calibration.camera_name != settings.camera_name:
-            self._log('warning', f'{path} is the calibration of camera_name {calibration.camera_name!r}, '
-                      f'this node is camera_name {settings.camera_name!r}; using the file')
-        if (calibration.width, calibration.height) != (spec.width, spec.height):
-            self._log('warning', f'{path} is for {calibration.width}x{calibration.height} images, the spec '
-                      f'says {spec.width}x{spec.height}; using the file (frames of the spec '
-                      'size get scaled intrinsics if the aspect ratio agrees)')
-
-    def _warn_spec(self, summary: Optional[dict]):
-        """The spec's FOVs that the solved camera misses (core/zeroshot/consistency.py), each a
-        WARN: the calibration is still adopted, and published, as the spec gives it."""
-        for warning in (summary or {}).get('warning', ()):
-            self._log('warning', f'spec: {warning}')
-
-    def _warn_fit(self, summary: Optional[dict]):
-        if summary and summary['fit_error_px'] > FIT_WARNING_PX:
-            self._log(
-                'warning', f"the published {summary['distortion_model']} model departs from the zero-shot lens by up to "
-                f"{summary['fit_error_px']:.3g} px (more than {FIT_WARNING_PX:g} px): consumers of CameraInfo "
-                'see that error' + (' (use distortion_model: equidistant for a lens this wide)'
-                                    if summary['distortion_model'] != 'equidistant' else ''))
-
     def _interfaces_text(self) -> str:
         def qos_text(reliability, durability='volatile', depth=5):
             return f'{reliability.name.lower()}, {durability}, depth {depth}'
@@ -330,14 +271,14 @@ class ZeroShotCalibNode(Node):
             f'  publishes  {self._diagnostics_pub.topic_name} (diagnostic_msgs/DiagnosticArray, 1 Hz)',
             f'  rectify    {self._rectify_text()}'
             f' (maps at most max_map_memory_mb = {self._map_budget}: {self._map_budget_why})',
-            f'  calibration file: {self._file_state}',
+            f'  calibration file: {self._cycle.file_state}',
             f'  frame path {self._frame_path_text()}',
             f'  executor   {self._executor_text}',
             f'  memory     {self._heap_text}',
         ])
 
     def _rectify_text(self) -> str:
-        return rectify_text(self._active.rectify_enabled, self._rect_subscribers, self._rect_ever_subscribed)
+        return rectify_text(self._cycle.active.rectify_enabled, self._rect_subscribers, self._rect_ever_subscribed)
 
     def _frame_path_text(self) -> str:
         return frame_path_text(self._serialized, self._frame_path_reason)
@@ -369,12 +310,12 @@ class ZeroShotCalibNode(Node):
 
     def _sync_rect_publisher(self):
         """image_rect is advertised only while rectify is on (it would collide with image_proc's)."""
-        if self._active.rectify_enabled and self._rect_pub is None:
+        if self._cycle.active.rectify_enabled and self._rect_pub is None:
             # matched: a subscriber's arrival starts its maps before the next frame comes
             events = PublisherEventCallbacks(matched=self._on_rect_matched) if self._matched_events else None
             self._rect_pub = self.create_publisher(Image, 'image_rect', self._image_qos(self._reliability),
                                                    event_callbacks=events)
-        elif not self._active.rectify_enabled and self._rect_pub is not None:
+        elif not self._cycle.active.rectify_enabled and self._rect_pub is not None:
             self.destroy_publisher(self._rect_pub)
             self._rect_pub = None
         self._rect_has_subscriber()
@@ -394,10 +335,10 @@ class ZeroShotCalibNode(Node):
         self._rect_subscribers = count
         if count and not before:
             self._rect_ever_subscribed = True
-            sizes = self._maps_ahead(self._active) if self._newest is self._active else []
+            sizes = self._maps_ahead(self._cycle.active) if self._cycle.newest is self._cycle.active else []
             self._log('info', 'image_rect has a subscriber: rectifying frames' +
                       (f' (maps of {", ".join(f"{w}x{h}" for w, h in sizes)} being built)' if sizes else ''))
-        elif not count and self._active.rectify_enabled:
+        elif not count and self._cycle.active.rectify_enabled:
             self._log('info', 'image_rect has no subscriber: frames are not rectified until one subscribes '
                       '(CameraInfo still goes out with every frame)')
         return count > 0
@@ -448,7 +389,7 @@ class ZeroShotCalibNode(Node):
     def _publish_own_info(self):
         """A CameraInfo stamped now (no image to take the header from)."""
         msg = CameraInfo()
-        fill_camera_info(msg, self._active.calibration)
+        fill_camera_info(msg, self._cycle.active.calibration)
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = self.get_parameter('frame_id').value
         self._info_pub.publish(msg)
@@ -460,7 +401,7 @@ class ZeroShotCalibNode(Node):
         self._process_message(msg)
 
     def _process_message(self, msg: Image):
-        active = self._active  # one snapshot per frame: CameraInfo and image_rect agree
+        active = self._cycle.active  # one snapshot per frame: CameraInfo and image_rect agree
         calibration = self._frame_calibration(active, msg.width, msg.height, msg.step, msg.encoding, len(msg.data))
         if calibration is None:
             return
@@ -492,7 +433,7 @@ class ZeroShotCalibNode(Node):
         except CdrError as exc:
             self._skip(FrameSkipped('malformed', str(exc)))
             return
-        active = self._active  # one snapshot per frame: CameraInfo and image_rect agree
+        active = self._cycle.active  # one snapshot per frame: CameraInfo and image_rect agree
         width, height = header.width, header.height
         calibration = self._frame_calibration(active, width, height, header.step, header.encoding, header.data_size)
         if calibration is None:
@@ -621,8 +562,8 @@ class ZeroShotCalibNode(Node):
             self._on_calibration_built()
         self._match_image_reliability()
         self._rect_has_subscriber()
-        for size in self._active.release_unused(OTHER_SIZE_IDLE_SECONDS):
-            self._builder.forget_size(self._active, *size)
+        for size in self._cycle.active.release_unused(OTHER_SIZE_IDLE_SECONDS):
+            self._builder.forget_size(self._cycle.active, *size)
             self.get_logger().info(f'rectification maps of {size[0]}x{size[1]} released (no such frame '
                                    f'for {OTHER_SIZE_IDLE_SECONDS:g} s)')
         self._poll_refiner()
@@ -651,7 +592,7 @@ class ZeroShotCalibNode(Node):
         pending = self._builder.pending
         refiner = self._refiner
         state = calibration_status(
-            self.get_name(), self._active, serialized=self._serialized, frame_path_reason=self._frame_path_reason,
+            self.get_name(), self._cycle.active, serialized=self._serialized, frame_path_reason=self._frame_path_reason,
             executor=self._executor_text, rectify=self._rectify_text(), rect_subscribers=self._rect_subscribers,
             qos_reliability=self._reliability.name, pending_generation=pending.active.generation if pending else '',
             maps_build_ms=self._maps_build_ms, process_rss_bytes=resident_bytes(),
@@ -687,24 +628,9 @@ class ZeroShotCalibNode(Node):
             return SetParametersResult(successful=True)
         # Checked and solved here, whole (a rejection must name its reason, and a success means
         # adopted); the maps are built on the builder thread and swapped in when ready.
-        basis = self._newest
-        generation = self._generation + 1
         values = self._values(parameters)
-        summary = None
         try:
-            settings = Settings.from_values(values)
-            if names & set(CALIBRATION_PARAMETERS) or basis.source == 'spec':
-                active, summary = solve_from_settings(settings, generation, build_maps=False,
-                                                      map_budget_bytes=self._map_budget_bytes)
-            else:  # a file / set_camera_info calibration stays; only P or the maps change
-                new_p = bool(names & {'balance', 'fov_scale'})
-                # with_rectification numbers its result one after the calibration it starts from
-                active = ActiveCalibration(basis.calibration, basis.camera, basis.source,
-                                           generation - 1 if new_p else generation,
-                                           settings.rectify, settings.interpolation, build_maps=False,
-                                           map_budget_bytes=self._map_budget_bytes)
-                if new_p:
-                    active = active.with_rectification(settings.balance, settings.fov_scale, build_maps=False)
+            settings, active, summary = self._cycle.for_parameters(names, values)
         except (SpecError, CalibrationFileError, NoConvergence, ValueError) as exc:
             reason = str(exc)
             if len(reason) > 1000:  # a message quoting a huge value: cut like one
@@ -725,8 +651,8 @@ class ZeroShotCalibNode(Node):
         changed = ', '.join(f'{p.name}={value_text(p.value)}' for p in parameters)
         self._adopt(active, f'parameters changed ({changed}), re-solved:\n' + summary_text(summary)
                     if summary else f'parameters changed ({changed})', values)
-        self._warn_spec(summary)
-        self._warn_fit(summary)
+        for warning in summary_warnings(summary):
+            self._log('warning', warning)
         return SetParametersResult(successful=True)
 
     # --- calibrations swapped in when their maps are ready --------------------------------
@@ -734,8 +660,7 @@ class ZeroShotCalibNode(Node):
                every_core: bool = False) -> MapJob:
         """``active`` in force once its maps are built (at once without rectification). Later
         changes build on it (``_newest``) even before it is in force."""
-        self._generation = max(self._generation, active.generation)
-        self._newest = active
+        self._cycle.accept(active)
         self._follow_with_refiner(active)
         job = MapJob(active, log, values=values if values is not None else self._values())
         if not active.rectify_enabled or not self._rect_has_subscriber():
@@ -788,7 +713,7 @@ class ZeroShotCalibNode(Node):
             if job.active.rectify_enabled:
                 self.get_logger().info(f'rectification maps of generation {job.active.generation} built '
                                        f'in {job.seconds * 1e3:.0f} ms')
-            if job.active is not self._active:
+            if job.active is not self._cycle.active:
                 self._swap_in(job)
 
     def _calibration_failed(self, job: MapJob):
@@ -797,14 +722,11 @@ class ZeroShotCalibNode(Node):
         to the values in force."""
         self._stats['calibration_build_failed'] += 1
         self._drop_pending_save(job.active.generation, f'building its maps failed: {job.error!r}')
-        if job.active is not self._newest:
+        if not self._cycle.build_failed(job.active):
             self.get_logger().warning(f'calibration (generation {job.active.generation}) not adopted, '
                                       f'building its maps failed: {job.error!r}; a newer change is pending')
             return
-        self._newest = self._active
-        restore = [Parameter(name, value=value) for name, value in self._values_in_force.items()
-                   if name in CALIBRATION_PARAMETERS + RECTIFICATION_PARAMETERS and
-                   self.get_parameter(name).value != value]
+        restore = [Parameter(name, value=value) for name, value in self._cycle.values_to_restore(self._values()).items()]
         self._reverting = True
         try:
             self.set_parameters_atomically(restore)
@@ -817,39 +739,22 @@ class ZeroShotCalibNode(Node):
             f'({", ".join(f"{p.name}={p.value!r}" for p in restore) or "unchanged"})')
 
     def _swap_in(self, job: MapJob):
-        if job.active.generation <= self._active.generation:
+        if not self._cycle.swap_in(job.active, job.values):
             return  # superseded while it was built
-        self._active = job.active
         self._frames.failed_maps.clear()
-        if job.values is not None:
-            self._values_in_force = job.values
         self._stats['calibrations_adopted'] += 1
         self._sync_rect_publisher()
         if job.log:
             self.get_logger().info(job.log)
         self._on_info_timer()  # late joiners see the change at once (unless a camera publishes)
-        pending = self._save_when_in_force
-        if pending is not None and job.active.generation >= pending[1]:
-            if job.active.source == 'set_camera_info':  # it, or a change of its P / maps
-                self._save_when_in_force = None
-                self.get_logger().info(f'calibration from set_camera_info in force{self._save_camera_info(pending[0])[1]}')
-            else:
-                self._drop_pending_save(job.active.generation, f'{job.active.source} is in force instead')
+        said = self._cycle.save_in_force(job.active)
+        if said is not None and said[1] is not None:
+            self._log(*said)
 
     def _drop_pending_save(self, generation: int, why: str):
-        pending = self._save_when_in_force
-        if pending is not None and generation >= pending[1]:
-            self._save_when_in_force = None
-            self.get_logger().warning(f'calibration from set_camera_info (generation {pending[1]}) not adopted '
-                                      f'and not saved: {why}')
-
-    def _save_camera_info(self, calibration: CameraCalibration) -> tuple:
-        """(saved, text for the reply / log) of saving a set_camera_info calibration in force."""
-        try:
-            calibration.save(self._url_path)
-            return True, f' and saved to {self._url_path}'
-        except (OSError, CalibrationFileError) as exc:
-            return False, f' but NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'
+        text = self._cycle.drop_pending_save(generation, why)
+        if text is not None:
+            self.get_logger().warning(text)
 
     def destroy_node(self):
         builder = getattr(self, '_builder', None)
@@ -873,7 +778,7 @@ class ZeroShotCalibNode(Node):
         self._refine, self._refine_interval = refine, interval
         if self._refiner is not None:
             self._refiner.interval = interval
-        self._follow_with_refiner(self._newest)
+        self._follow_with_refiner(self._cycle.newest)
 
     def _follow_with_refiner(self, active: ActiveCalibration):
         """Start, keep or stop the refiner for ``active`` (the newest calibration): only one from
@@ -908,7 +813,7 @@ class ZeroShotCalibNode(Node):
         # node with refine off (the default) should import before its first CameraInfo
         from ..core.streaming.online_refinement import OnlineRefiner
 
-        initial, reference = self._refined if active.source == 'refined' and self._refined else (None, None)
+        initial, reference = self._cycle.refined if active.source == 'refined' and self._cycle.refined else (None, None)
         self._refiner = OnlineRefiner(self._settings.spec, self._refine_interval, initial=initial,
                                       reference_uncertainty_px=reference)
         self._refine_logged = None
@@ -956,51 +861,21 @@ class ZeroShotCalibNode(Node):
             self._adopt_refinement(result)
 
     def _adopt_refinement(self, result):
-        basis = self._newest
+        basis = self._cycle.newest
         if basis.source not in REFINABLE_SOURCES:  # stopped refiners give no result; defensive
             self.get_logger().info(f'refined calibration discarded: the calibration is from {basis.source}')
             return
-        width, height = basis.calibration.width, basis.calibration.height
-        settings = self._settings
-        s = result.status
-        from ..core.streaming.online_refinement import px_text as px, refined_calibration_and_fit
-
         try:
-            # in the configured distortion model (plumb_bob fitted to the refined lens, with its error)
-            calibration, fit_error_px = refined_calibration_and_fit(
-                result.camera, width, height, settings.balance, settings.fov_scale, settings.camera_name,
-                settings.distortion_model)
-            camera = calibration.camera()
-            active = ActiveCalibration(calibration, camera, 'refined', self._generation + 1, settings.rectify,
-                                       settings.interpolation, build_maps=False,
-                                       map_budget_bytes=self._map_budget_bytes)
+            active, fit_error_px = self._cycle.for_refinement(result.camera, self._settings)
         except (CalibrationFileError, MapBudgetExceeded, ValueError) as exc:
             self.get_logger().warning(f'refined calibration not adopted: {exc}')
             return
-
-        def text(c):
-            return f'K {np.round(c.K, 3).tolist()}\n    {c.distortion_model} D {np.round(c.D.ravel(), 6).tolist()}'
-        self.get_logger().info(
-            f'refinement accepted: {s.lines} lines from {s.frames_used} frame(s), coverage {100 * s.coverage:.0f} %, '
-            f'line residual {px(s.residual_px_before)} -> {px(s.residual_px)} px, uncertainty '
-            f'{px(s.zero_shot_uncertainty_px)} -> {px(s.uncertainty_px)} px, principal point moved '
-            f'{px(s.principal_point_shift_px)} px; adopting it as generation {active.generation}\n'
-            f'  before (generation {basis.generation}, {basis.source}): {text(basis.calibration)}\n'
-            f'  after  (refined): {text(calibration)}'
-            + (f'\n  {calibration.distortion_model} fitted to the refined lens: error up to {fit_error_px:.3g} px'
-               if calibration.distortion_model != 'equidistant' else ''))
-        if fit_error_px > FIT_WARNING_PX:
-            self.get_logger().warning(
-                f'the published {calibration.distortion_model} model departs from the refined lens by up to '
-                f'{fit_error_px:.3g} px (more than {FIT_WARNING_PX:g} px): consumers of CameraInfo see that error '
-                '(use distortion_model: equidistant for a lens this wide)')
-        try:
-            calibration.save(self._url_path)
-            saved = f'saved to {self._url_path}'
-        except (OSError, CalibrationFileError) as exc:
-            saved = f'NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'
+        for level, text in refinement_texts(result, basis, active, fit_error_px):
+            self._log(level, text)
+        saved_ok, saved = self._cycle.save(active.calibration)
+        if not saved_ok:
             self.get_logger().warning(f'refined calibration {saved}')
-        self._refined = (result.camera, s.uncertainty_px)
+        self._cycle.refined = (result.camera, result.status.uncertainty_px)
         self._adopt(active, f'refined calibration adopted (generation {active.generation}, source refined), '
                     f'{saved}')
 
@@ -1014,10 +889,7 @@ class ZeroShotCalibNode(Node):
         a calibration that does not go into force."""
         try:
             calibration = calibration_from_camera_info(request.camera_info, self._settings.camera_name)
-            active = ActiveCalibration(calibration, calibration.camera(), 'set_camera_info',
-                                       self._generation + 1, self._settings.rectify,
-                                       self._settings.interpolation, build_maps=False,
-                                       map_budget_bytes=self._map_budget_bytes)
+            active = self._cycle.for_camera_info(calibration, self._settings)
         except (CalibrationFileError, ValueError) as exc:
             response.success, response.status_message = False, f'rejected, calibration unchanged: {exc}'
             self.get_logger().warning(f'set_camera_info {response.status_message}')
@@ -1026,13 +898,13 @@ class ZeroShotCalibNode(Node):
             response.success, response.status_message = False, f'rejected, calibration unchanged: {exc!r}'
             self.get_logger().error(f'set_camera_info {response.status_message}')
             return response
-        self._save_when_in_force = None  # a newer request replaces an older one still building
+        self._cycle.save_when_in_force = None  # a newer request replaces an older one still building
         start = time.monotonic()
         job = self._adopt(active, 'calibration from set_camera_info adopted', every_core=True)
         job.finished.wait(SET_CAMERA_INFO_WAIT_SECONDS)
         if job.finished.is_set() and job.error is None and not job.superseded:
             self._swap_in(job)  # in force now (a no-op when it already is)
-            response.success, saved = self._save_camera_info(calibration)
+            response.success, saved = self._cycle.save_camera_info(calibration)
             response.status_message = f'calibration adopted{saved}'
         elif job.finished.is_set():
             why = f'building its rectification maps failed: {job.error!r}' if job.error is not None \
@@ -1040,12 +912,12 @@ class ZeroShotCalibNode(Node):
             response.success = False
             response.status_message = f'not adopted, calibration unchanged: {why}; nothing saved'
         else:
-            self._save_when_in_force = (calibration, active.generation)
+            self._cycle.save_when_in_force = (calibration, active.generation)
             response.success = True
             response.status_message = (
                 f'calibration accepted, not in force yet: its rectification maps of {active.size[0]}x'
                 f'{active.size[1]} are being built ({time.monotonic() - start:.1f} s so far); it goes '
-                f'into force and is saved to {self._url_path} when they are (the log says so)')
+                f'into force and is saved to {self._cycle.url_path} when they are (the log says so)')
         self.get_logger().info(f'set_camera_info: {response.status_message}')
         return response
 
