@@ -2,8 +2,12 @@
 
     ros2 run zeroshot_calib_ros node --ros-args -p width:=1920 -p height:=1080 -p hfov:=118 -p vfov:=69
 
-Only ROS plumbing lives here (parameters, topics, the service, QoS); every computation is in
-``zeroshot_calib_ros.core``.
+Only ROS plumbing lives here (parameters, topics, the service, QoS, timers, logging); every
+computation is in ``zeroshot_calib_ros.core``, the node's own in rclpy-free collaborators in
+``core/streaming/``: ``frame_path`` (a frame -> its CameraInfo bytes, its rectified bytes or why
+it is skipped), ``calibration_cycle`` (which calibration is in force, the candidates from the
+spec, a file, parameters, set_camera_info and refinement, the saves), ``refinement_control`` (the
+refiner's life cycle) and ``diagnostics`` (the /diagnostics status and the state texts).
 
 Threads: every ROS callback runs on the executor thread, and only there is the calibration in
 force (``_active``) replaced. Rectification maps of a new calibration (parameter change,
@@ -72,13 +76,13 @@ from ..core.ros_formats.calibration_file import (CalibrationFileError, CameraCal
 from ..core.streaming.calibration_cycle import (REFINABLE_SOURCES, CalibrationCycle,  # noqa: E402
                                                refinement_texts, summary_warnings)
 from ..core.ros_formats.cdr_image import CdrError, NotPlainCdr, parse_image, pixel_bytes  # noqa: E402
-from ..core.streaming.diagnostics import (calibration_status, frame_path_text, rectify_text,  # noqa: E402
-                                          refine_values)
+from ..core.streaming.diagnostics import calibration_status, frame_path_text, rectify_text  # noqa: E402
 from ..core.streaming.frame_path import FramePath  # noqa: E402
 from ..core.streaming.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded,  # noqa: E402
                                           binning_or_roi_reason, default_map_budget, image_array)
 from ..core.streaming.heap import keep_frames_in_heap, resident_bytes  # noqa: E402
 from ..core.streaming.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
+from ..core.streaming.refinement_control import RefinementControl, refine_settings  # noqa: E402
 from ..core.streaming.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
                                              RECTIFICATION_PARAMETERS, Settings, changed_parameters,
                                              number_in_range, params_file_errors,
@@ -184,9 +188,8 @@ class ZeroShotCalibNode(Node):
             self._map_budget, self._map_budget_why = default_map_budget()
         settings = Settings.from_values(self._values())
         self._settings = settings
-        self._refine, self._refine_interval = self._refine_values(self._values())
-        self._refiner = None  # an online_refinement.OnlineRefiner while refine is on
-        self._refine_off = 'refine is false'  # why no refiner runs (diagnostics)
+        # the refiner while refine is on: started, restarted and stopped with the newest calibration
+        self._refinement = RefinementControl(*refine_settings(self._values()), log=self._log, due=self._due)
         url = self.get_parameter('camera_info_url').value
         # which calibration is in force, the newest accepted, pending saves, the last refinement
         self._cycle = CalibrationCycle(resolve_camera_info_url(url, settings.camera_name), self._map_budget_bytes)
@@ -409,7 +412,7 @@ class ZeroShotCalibNode(Node):
         info.header = msg.header
         self._info_pub.publish(info)
         self._stats['camera_info_published'] += 1
-        if self._refiner is not None:
+        if self._refinement.refiner is not None:
             self._offer_frame(msg.data, msg.width, msg.height, msg.step, msg.encoding, msg.is_bigendian, copy=True)
         rectifier = self._frame_rectifier(active, calibration, msg.width, msg.height)
         if rectifier is None:
@@ -440,7 +443,7 @@ class ZeroShotCalibNode(Node):
             return
         publish_serialized(self._info_pub, self._frames.serialized_info(calibration, header))
         self._stats['camera_info_published'] += 1
-        if self._refiner is not None:  # raw is an immutable bytes object: its pixels are held, not copied
+        if self._refinement.refiner is not None:  # raw is an immutable bytes object: its pixels are held, not copied
             self._offer_frame(pixel_bytes(raw, header), width, height, header.step, header.encoding,
                               header.is_bigendian, copy=False)
         rectifier = self._frame_rectifier(active, calibration, width, height)
@@ -590,13 +593,12 @@ class ZeroShotCalibNode(Node):
         if self._frames.uncalibrated is not None and not self._camera_exists():
             self._frames.uncalibrated = None  # the camera has stopped
         pending = self._builder.pending
-        refiner = self._refiner
         state = calibration_status(
             self.get_name(), self._cycle.active, serialized=self._serialized, frame_path_reason=self._frame_path_reason,
             executor=self._executor_text, rectify=self._rectify_text(), rect_subscribers=self._rect_subscribers,
             qos_reliability=self._reliability.name, pending_generation=pending.active.generation if pending else '',
             maps_build_ms=self._maps_build_ms, process_rss_bytes=resident_bytes(),
-            refine=refine_values(refiner.status.values() if refiner is not None else None, self._refine_off),
+            refine=self._refinement.diagnostics(),
             stats=self._stats, uncalibrated=self._frames.uncalibrated)
         status = DiagnosticStatus(level=getattr(DiagnosticStatus, state.level), name=state.name,
                                   hardware_id=state.hardware_id, message=state.message,
@@ -619,7 +621,7 @@ class ZeroShotCalibNode(Node):
         refine_values = None
         if names & set(REFINE_PARAMETERS):
             try:
-                refine_values = self._refine_values(self._values(parameters))
+                refine_values = refine_settings(self._values(parameters))
             except SpecError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
         if not names & set(CALIBRATION_PARAMETERS + RECTIFICATION_PARAMETERS):
@@ -645,9 +647,7 @@ class ZeroShotCalibNode(Node):
             return SetParametersResult(successful=False, reason=reason)
         self._settings = settings
         if refine_values is not None:
-            self._refine, self._refine_interval = refine_values
-            if self._refiner is not None:
-                self._refiner.interval = self._refine_interval
+            self._refinement.configure(*refine_values)
         changed = ', '.join(f'{p.name}={value_text(p.value)}' for p in parameters)
         self._adopt(active, f'parameters changed ({changed}), re-solved:\n' + summary_text(summary)
                     if summary else f'parameters changed ({changed})', values)
@@ -760,103 +760,27 @@ class ZeroShotCalibNode(Node):
         builder = getattr(self, '_builder', None)
         if builder is not None:
             builder.stop()
-        refiner = getattr(self, '_refiner', None)
-        if refiner is not None:
-            refiner.stop('the node is shutting down')
-            refiner.join(3.0)
+        refinement = getattr(self, '_refinement', None)
+        if refinement is not None:
+            refinement.shutdown()
         return super().destroy_node()
 
     # --- refine: the calibration refined from straight lines in the frames ------------------
-    @staticmethod
-    def _refine_values(values: dict) -> tuple:
-        """(refine, refine_interval) checked, else SpecError naming the allowed values."""
-        if not isinstance(values['refine'], bool):
-            raise SpecError('refine', values['refine'], 'true or false')
-        return values['refine'], number_in_range('refine_interval', values['refine_interval'], 0.1, 3600.0)
-
     def _set_refine(self, refine: bool, interval: float):
-        self._refine, self._refine_interval = refine, interval
-        if self._refiner is not None:
-            self._refiner.interval = interval
+        self._refinement.configure(refine, interval)
         self._follow_with_refiner(self._cycle.newest)
 
     def _follow_with_refiner(self, active: ActiveCalibration):
-        """Start, keep or stop the refiner for ``active`` (the newest calibration): only one from
-        the spec or an earlier refinement is refined; a refiner whose basis is replaced by another
-        kind of calibration is stopped (what it found is discarded), one whose spec changed restarts."""
-        refiner = self._refiner
-        if not self._refine:
-            why = 'refine is false'
-        elif active.source not in REFINABLE_SOURCES:
-            why = (f'the calibration from {active.source} is not refined (only one from the spec or an '
-                   'earlier refinement)')
-        else:
-            why = None
-        if why is not None:
-            if refiner is not None:
-                before = refiner.status
-                refiner.stop(why)
-                self._refiner = None
-                self.get_logger().info(f'refinement stopped ({before.state}, {before.frames_kept} frame(s) taken; '
-                                       f'what it found is discarded): {why}')
-            elif self._refine and why != self._refine_off:
-                self.get_logger().info(f'refine: {why}')
-            self._refine_off = why
-            return
-        if refiner is not None:
-            if active.source == 'refined':
-                return  # its own result, or a change of rectification only
-            if refiner.spec == self._settings.spec and refiner.status.state not in ('failed', 'stopped'):
-                return  # re-solved from the same spec: the evidence still holds
-            refiner.stop('the spec changed')
-        # imported here: its worker process, pickling and Kannala-Brandt fitting are not what a
-        # node with refine off (the default) should import before its first CameraInfo
-        from ..core.streaming.online_refinement import OnlineRefiner
-
-        initial, reference = self._cycle.refined if active.source == 'refined' and self._cycle.refined else (None, None)
-        self._refiner = OnlineRefiner(self._settings.spec, self._refine_interval, initial=initial,
-                                      reference_uncertainty_px=reference)
-        self._refine_logged = None
-        self.get_logger().info(
-            f'refine: sampling one frame every {self._refine_interval:g} s (worker pid {self._refiner.pid}, '
-            f'low priority); refining the calibration from {active.source} (generation {active.generation})')
+        self._refinement.follow(active, self._settings.spec, self._cycle.refined)
 
     def _offer_frame(self, data, width: int, height: int, step: int, encoding: str, is_bigendian: bool, copy: bool):
         """Frame callback: a comparison unless the refiner takes this frame."""
-        now = time.monotonic()
-        refiner = self._refiner
-        if not refiner.due(now):
-            return
-        try:
-            image = image_array(data, width, height, step, encoding, is_bigendian)
-        except FrameSkipped:
-            return  # already counted as skipped by the frame's own checks, or an encoding it cannot read
-        if refiner.offer(image, now, copy=copy):
+        if self._refinement.offer(data, width, height, step, encoding, is_bigendian, copy, time.monotonic()):
             self._stats['refine_frames_sampled'] += 1
 
     def _poll_refiner(self):
         """Housekeeping: log the refiner's state changes; adopt an accepted refinement."""
-        refiner = self._refiner
-        if refiner is None:
-            return
-        status = refiner.status
-        key = (status.state, status.frames_processed)
-        if status.state == 'failed':  # the worker is gone: said once, with what to do
-            if self._refine_logged != 'failed':
-                self._refine_logged = 'failed'
-                self.get_logger().warning(
-                    f'refine: failed after {status.frames_processed} frame(s): {status.reason}; no more refinement '
-                    '(the calibration in force stays); set refine to false and true to restart it')
-        elif key != self._refine_logged and status.frames_processed:
-            self._refine_logged = key
-            text = (f'refine: {status.state} after {status.frames_processed} frame(s): {status.lines} lines, '
-                    f'coverage {100 * status.coverage:.0f} %: {status.reason}')
-            if status.state == 'error':
-                if self._due('refine_error'):  # a frame the worker cannot use: at most one line every few s
-                    self.get_logger().warning(text)
-            else:
-                self.get_logger().info(text)
-        result = refiner.take_result()
+        result = self._refinement.poll()
         if result is not None:
             self._adopt_refinement(result)
 
