@@ -54,7 +54,7 @@ def vfov_for(width, height):
 def node_calibration(width, height, rectify=True):
     """The node's own ActiveCalibration for the benchmark lens at this frame size (the node's
     defaults and code path; needs the install tree, or the package, importable)."""
-    from zeroshot_calib_ros.core.ros_data.node_parameters import PARAMETERS, Settings, solve_from_settings
+    from zeroshot_calib_ros.core.streaming.node_parameters import PARAMETERS, Settings, solve_from_settings
     values = {name: parameter.default for name, parameter in PARAMETERS.items()}
     values.update(width=width, height=height, hfov=HFOV, vfov=vfov_for(width, height), rectify=rectify)
     active, _ = solve_from_settings(Settings.from_values(values), 0)
@@ -282,9 +282,9 @@ def frames_in_heap():
     """The node's allocator settings in every process of a benchmark (publisher, subscriber,
     relays): each allocates a frame-sized block per frame, and glibc's default thresholds make
     that cost a page fault per page in some processes and none in others, at random
-    (zeroshot_calib_ros/core/ros_data/heap.py). The floors and the clients are then the same in
+    (zeroshot_calib_ros/core/streaming/heap.py). The floors and the clients are then the same in
     every round, and the relay floor is not slowed by faults the node no longer takes."""
-    from zeroshot_calib_ros.core.ros_data.heap import keep_frames_in_heap
+    from zeroshot_calib_ros.core.streaming.heap import keep_frames_in_heap
     return keep_frames_in_heap()
 
 

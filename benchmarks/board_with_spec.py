@@ -43,7 +43,7 @@ from zeroshot_calib_ros.core.checkerboard.evaluation import reprojection_error  
 from zeroshot_calib_ros.core.estimation import board_fit  # noqa: E402
 from zeroshot_calib_ros.core.estimation.board_fit import fit_board  # noqa: E402
 from zeroshot_calib_ros.core.lens.models import camera_from_calibration  # noqa: E402
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration  # noqa: E402
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration  # noqa: E402
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'ros_fisheye_800x503'
 WORSE_MARGIN_PX = 0.2

@@ -483,7 +483,7 @@ def real_spec_and_truth(data: Path):
     """(spec, authors' camera) of the shared set: hfov / vfov from ost.yaml read as
     Kannala-Brandt (as benchmarks/paper_table4.py derives them; the set has no spec sheet)."""
     from zeroshot_calib_ros.core.lens.models import camera_from_calibration
-    from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+    from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
     ost = CameraCalibration.load(str(data / 'ost.yaml'))
     authors = camera_from_calibration('equidistant', ost.K, ost.D, ost.width, ost.height)
     fovs = authors.fields_of_view()

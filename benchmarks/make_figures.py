@@ -43,7 +43,7 @@ import cv2  # noqa: E402
 from zeroshot_calib_ros.cli import main  # noqa: E402
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera, camera_from_calibration  # noqa: E402
 from zeroshot_calib_ros.core.report.canvas import INK, MUTED, PAPER, put_text  # noqa: E402
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration  # noqa: E402
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration  # noqa: E402
 
 DEFAULT_DATA = ROOT.parent / 'shared' / 'data' / 'ros_fisheye_800x503'
 DEFAULT_OUT = ROOT / 'docs' / 'images'

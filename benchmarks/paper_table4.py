@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from zeroshot_calib_ros.core import CameraSpec, ZeroShotCamera  # noqa: E402
 from zeroshot_calib_ros.core.checkerboard.calibration import calibrate_fc, perspective_camera  # noqa: E402
 from zeroshot_calib_ros.core.checkerboard.calibration import paper_zero_shot_camera as zero_shot_camera  # noqa: E402
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration, json_safe  # noqa: E402
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration, json_safe  # noqa: E402
 from zeroshot_calib_ros.core.lens.models import camera_from_calibration  # noqa: E402
 from zeroshot_calib_ros.core.checkerboard.corners import Board, detect_corners  # noqa: E402
 from zeroshot_calib_ros.core.checkerboard.evaluation import (evaluate, evaluation_to_dict,  # noqa: E402

@@ -361,7 +361,7 @@ def timed(fn, repeat, warm=2, pause=0.0):
 
 def remap_floor(width, height, encoding, repeat):
     import cv2
-    from zeroshot_calib_ros.core.ros_data import rectify as rectify_module
+    from zeroshot_calib_ros.core.ros_formats import rectify as rectify_module
     active = bc.node_calibration(width, height)
     _, rectifier = active.for_size(width, height)
     image = bc.test_image(width, height, bc.CHANNELS[encoding])
@@ -385,7 +385,7 @@ def compare_with_opencv(width, height, encoding, repeat):
     """Our exact fixed-point maps vs cv2.fisheye maps of the published CameraInfo (image_proc's
     route) vs cv2.fisheye.undistortImage per frame."""
     import cv2
-    from zeroshot_calib_ros.core.ros_data.rectify import Rectifier
+    from zeroshot_calib_ros.core.ros_formats.rectify import Rectifier
     active = bc.node_calibration(width, height)
     cal = active.calibration
     K, D, P = cal.K, cal.D, cal.P[:3, :3]
@@ -616,7 +616,7 @@ def maps_text(facts: dict) -> str:
 
 def fault_lines(results):
     """Page faults and CPU of each process under test per frame of the 30 fps phase, round by
-    round: a frame-sized block faulted in anew every frame shows here (core/ros_data/heap.py)."""
+    round: a frame-sized block faulted in anew every frame shows here (core/streaming/heap.py)."""
     order = ['relay', 'relay_events', 'remap_relay', 'remap_relay_events', 'node', 'node_events', 'node_nosub',
              'node_events_nosub', 'baseline', 'baseline_nosub']
     systems = [system for system in order if any(r.get(system, {}).get('faults_per_frame') for r in results)]

@@ -61,7 +61,7 @@ class Relay(Node):
         if rectifier is None:
             self.create_subscription(Image, in_topic, self._on_image, QOS, raw=(mode == 'raw'))
             return
-        from zeroshot_calib_ros.core.ros_data.cdr_image import SerializedImage
+        from zeroshot_calib_ros.core.ros_formats.cdr_image import SerializedImage
         self._rect = SerializedImage()
         self._info_pub = self.create_publisher(CameraInfo, 'camera_info', INFO_QOS)
         self.create_subscription(Image, in_topic, self._on_image_remapped, IN_QOS_REMAP, raw=True)
@@ -71,8 +71,8 @@ class Relay(Node):
         self.count += 1
 
     def _on_image_remapped(self, raw: bytes):
-        from zeroshot_calib_ros.core.ros_data.cdr_image import parse_image, patch_stamp, pixel_bytes
-        from zeroshot_calib_ros.core.ros_data.image_frames import image_array
+        from zeroshot_calib_ros.core.ros_formats.cdr_image import parse_image, patch_stamp, pixel_bytes
+        from zeroshot_calib_ros.core.streaming.image_frames import image_array
         from zeroshot_calib_ros.ros.messages import serialized_camera_info
         from zeroshot_calib_ros.ros.node import publish_serialized
 

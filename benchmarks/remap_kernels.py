@@ -80,7 +80,7 @@ def main(argv=None):
     p.add_argument('--append', type=Path, help='append this run (another OpenCV) to that file')
     args = p.parse_args(argv)
     import cv2
-    from zeroshot_calib_ros.core.ros_data.rectify import map_format_for, pads_to_four_channels
+    from zeroshot_calib_ros.core.ros_formats.rectify import map_format_for, pads_to_four_channels
     started = time.time()
     lines = [f'## OpenCV {cv2.__version__} ({cv2.getNumThreads()} threads)', '',
              f'Command: `{Path(sys.executable).relative_to(REPO) if str(sys.executable).startswith(str(REPO)) else sys.executable} '

@@ -360,7 +360,7 @@ def corners_file(tmp_path):
 
 
 def test_evaluate_spec_from_a_lens_that_turns_back_says_where(tmp_path, capsys):
-    from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+    from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
     corners, w, h = corners_file(tmp_path)
     # theta_d = theta (1 - 0.5 theta^2) peaks at theta = sqrt(2/3): radius 300 * 0.5443 = 163.3 px,
     # short of the 400 px to the left and right edges
@@ -388,7 +388,7 @@ def test_evaluate_spec_from_keeps_fovs_over_180_degrees(tmp_path):
     import argparse
     import math
     from zeroshot_calib_ros.cli import evaluate as cli
-    from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+    from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
     w, h = 848, 800
     f = (w / 2) / math.radians(103)  # the equidistant law r = f theta: 103 degrees at the side edges
     calib = tmp_path / 'wide.yaml'

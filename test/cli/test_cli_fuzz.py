@@ -33,7 +33,7 @@ from hypothesis import strategies as st
 
 from fuzz_settings import examples
 from zeroshot_calib_ros.cli import build_parser, main
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
 
 CASES = Counter()
 STATUSES = Counter()

@@ -24,7 +24,7 @@ import zeroshot_calib_ros.cli.output as cli_output
 from cli_run import run_main, same_result
 from test_calibration import TRUE, spec_of, synthetic_corners
 from zeroshot_calib_ros.core import CameraCalibration, CameraSpec, solve_zero_shot
-from zeroshot_calib_ros.core.ros_data.calibration_file import NONZERO_EPSILON
+from zeroshot_calib_ros.core.ros_formats.calibration_file import NONZERO_EPSILON
 
 REPO = Path(__file__).resolve().parents[2]
 PURE_FISHEYE = ['--width', '1920', '--height', '1080', '--circle-diameter', '1000', '--circle-fov', '200']
@@ -301,7 +301,7 @@ def test_the_documented_principal_points_of_P_on_the_shared_set(tmp_path, capsys
     """docs/cli_output.md: FC_eq.d. on the 24 images, K's principal point (399.1, 271.8) is P's;
     OpenCV's rule would give (279.0, 386.5). To 0.5 px (the last digit moves with the OpenCV
     version's corner detection) and 3 px."""
-    from zeroshot_calib_ros.core.ros_data.rectify import new_camera_matrix
+    from zeroshot_calib_ros.core.ros_formats.rectify import new_camera_matrix
     assert "zeroshot-calib calibrate '../shared/data/ros_fisheye_800x503/left-*.png' --yaml camera.yaml" in DOC
     out_yaml = tmp_path / 'camera.yaml'
     status, _, err = run_main(['calibrate', str(SHARED / 'ros_fisheye_800x503' / 'left-*.png'), '--yaml',

@@ -7,8 +7,9 @@ imports ROS, and every module belongs to a layer (a new module must be placed in
     1 core/zeroshot                   spec sheet -> camera (the paper's solver, presets, wide model)
     2 core/checkerboard, core/lines   calibration evidence: chessboard images, straight lines
     3 core/estimation                 the MAP fit over all evidence, its uncertainty, the quality gate
-    4 core/ros_data                   what ROS carries, without ROS: files, CameraInfo, images, maps
-    5 core/report                     pictures for a user: the calibration report, refine's contact sheet
+    4 core/ros_formats                the formats ROS carries, without ROS: files, CameraInfo, images, maps
+    5 core/streaming                  the pipeline the node drives, without ROS: frames, map builds, refiner
+      core/report                     pictures for a user: the calibration report, refine's contact sheet
     6 core (its __init__)             the public API: re-exports
     7 cli, ros                        the two front ends: zeroshot-calib, the ROS node
 """
@@ -24,8 +25,8 @@ LAYERS = {
     'core.zeroshot': 1,
     'core.checkerboard': 2, 'core.lines': 2,
     'core.estimation': 3,
-    'core.ros_data': 4,
-    'core.report': 5,
+    'core.ros_formats': 4,
+    'core.streaming': 5, 'core.report': 5,
     'core': 6,
     'cli': 7, 'ros': 7,
     '': 0,  # zeroshot_calib_ros/__init__.py: the version, nothing else
@@ -132,9 +133,13 @@ def test_the_layers_are_the_ones_docs_architecture_describes():
 
 @pytest.mark.parametrize('importer, imported, expected', [
     ('core/lens/models.py', 'from ..zeroshot.spec import CameraSpec\n', 'imports run downwards only'),
-    ('core/zeroshot/solver.py', 'from ..ros_data.rectify import Rectifier\n', 'imports run downwards only'),
+    ('core/zeroshot/solver.py', 'from ..ros_formats.rectify import Rectifier\n', 'imports run downwards only'),
+    ('core/ros_formats/rectify.py', 'from ..streaming.image_frames import ActiveCalibration\n',
+     'imports run downwards only'),
+    ('core/streaming/map_builder.py', 'from ..report.canvas import x\n', 'independent'),
     ('core/checkerboard/pose.py', 'from ..lines import x\n', 'independent'),
-    ('core/ros_data/rectify.py', 'import rclpy\n', 'never imports ROS'),
+    ('core/ros_formats/rectify.py', 'import rclpy\n', 'never imports ROS'),
+    ('core/streaming/image_frames.py', 'import rclpy\n', 'never imports ROS'),
     ('core/lens/fitting.py', 'from zeroshot_calib_ros.cli import main\n', 'imports run downwards only'),
 ])
 def test_the_rule_catches_an_upward_import(tmp_path, importer, imported, expected):
@@ -151,7 +156,7 @@ def test_the_rule_catches_an_upward_import(tmp_path, importer, imported, expecte
 # Where the tests are (docs/architecture.md): zeroshot_calib_ros/<dir>/<module>.py is tested in
 # test/<dir>/test_<module>*.py, or, listed here, by the file that covers it (which names it) and why.
 TESTED_THROUGH = {
-    'core/atomic_file.py': ('test/core/ros_data/test_calibration_file_save.py', 'calibration files saved'),
+    'core/atomic_file.py': ('test/core/ros_formats/test_calibration_file_save.py', 'calibration files saved'),
     'core/file_input.py': ('test/cli/test_cli_files.py', 'every file the CLI reads'),
     'core/checkerboard/corner_term.py': ('test/core/estimation/test_board_fit.py', 'the board fit\'s term'),
     'core/checkerboard/pose.py': ('test/core/checkerboard/test_evaluation.py', 'the protocol\'s poses'),

@@ -9,7 +9,7 @@ import yaml
 
 from paper_table2 import load_table2
 from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = REPO / 'config'

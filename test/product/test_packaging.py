@@ -171,7 +171,7 @@ def test_installed_node_starts_on_what_its_first_camera_info_needs():
     assert 'ros2 run zeroshot_calib_ros node' in result.stdout
     imported = {line.split('|')[-1].strip() for line in result.stderr.splitlines() if line.startswith('import time:')}
     assert 'zeroshot_calib_ros.ros.node' in imported
-    unwanted = {'importlib.metadata', 'cv2', 'zeroshot_calib_ros.core.ros_data.online_refinement', 'scipy.optimize'}
+    unwanted = {'importlib.metadata', 'cv2', 'zeroshot_calib_ros.core.streaming.online_refinement', 'scipy.optimize'}
     assert not imported & unwanted, sorted(imported & unwanted)
 
 

@@ -28,8 +28,8 @@ from zeroshot_calib_ros.core import (PROJECTIONS, CameraCalibration, CameraInfoM
                                      KannalaBrandtCamera, PinholeCamera, PlumbBobCamera, Rectifier,
                                      ZeroShotCamera, solve_zero_shot)
 from zeroshot_calib_ros.core.lens.wide_fov import WideFovCamera
-from zeroshot_calib_ros.core.ros_data.image_frames import ENCODINGS, default_map_budget_mb, map_bytes
-from zeroshot_calib_ros.core.ros_data.rectify import new_camera_matrix
+from zeroshot_calib_ros.core.streaming.image_frames import ENCODINGS, default_map_budget_mb, map_bytes
+from zeroshot_calib_ros.core.ros_formats.rectify import new_camera_matrix
 from zeroshot_calib_ros.core.zeroshot.solver import PROJECTION_CHOICES
 
 from doc_pages import REPO, markdown_rows, page, section as doc_section
@@ -614,8 +614,8 @@ def test_maps_of_another_frame_size_are_built_on_a_low_priority_worker_thread():
     while the configured size keeps flowing". The node's MapBuilder, given a new frame size:
     the maps are built on another thread, whose nice value (os.getpriority of that thread) is
     10 or more, above this thread's; the configured size's calibration is served meanwhile."""
-    from zeroshot_calib_ros.core.ros_data.image_frames import ActiveCalibration
-    from zeroshot_calib_ros.core.ros_data.map_builder import MapBuilder
+    from zeroshot_calib_ros.core.streaming.image_frames import ActiveCalibration
+    from zeroshot_calib_ros.core.streaming.map_builder import MapBuilder
     import threading
     solution = solve_zero_shot(CameraSpec(320, 180, 118, 69))
     calibration, _ = CameraCalibration.from_solution(solution)

@@ -204,7 +204,7 @@ def test_maps_of_another_frame_size_are_released_after_10_s_unused(monkeypatch):
     frame". The node's idle limit, and what it releases with it (a clock moved by hand): the
     other size at 10 s after its last frame, never the configured size."""
     from zeroshot_calib_ros.core import CameraCalibration, CameraSpec, solve_zero_shot
-    from zeroshot_calib_ros.core.ros_data import image_frames
+    from zeroshot_calib_ros.core.streaming import image_frames
     from zeroshot_calib_ros.ros.node import OTHER_SIZE_IDLE_SECONDS
     assert OTHER_SIZE_IDLE_SECONDS == 10
     clock = [1000.0]

@@ -22,11 +22,11 @@ from sensor_msgs.msg import CameraInfo, Image
 from ros_peer import (diagnostics_value, domain_id, image_msg, parameter_msg, peer, qos,  # noqa: F401
                       start_node)
 from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
-from zeroshot_calib_ros.core.ros_data.calibration_file import CalibrationFileError, CameraCalibration
-from zeroshot_calib_ros.core.ros_data.image_frames import ENCODINGS, ActiveCalibration, FrameSkipped, image_array
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CalibrationFileError, CameraCalibration
+from zeroshot_calib_ros.core.streaming.image_frames import ENCODINGS, ActiveCalibration, FrameSkipped, image_array
 from zeroshot_calib_ros.core.zeroshot.solver import PROJECTION_CHOICES, NoConvergence
 from zeroshot_calib_ros.core.zeroshot.spec import SpecError
-from zeroshot_calib_ros.core.ros_data.node_parameters import PARAMETERS, Settings, solve_from_settings
+from zeroshot_calib_ros.core.streaming.node_parameters import PARAMETERS, Settings, solve_from_settings
 from zeroshot_calib_ros.ros.messages import fill_camera_info
 
 EXPECTED_REJECTIONS = (SpecError, CalibrationFileError, NoConvergence, ValueError)

@@ -65,7 +65,7 @@ def test_every_frame_size_is_rectified_again_after_more_sizes_than_the_cache_hol
 
 RSS_GROWTH_BOUND_MIB = 80
 """What the node may keep after every odd size's maps are released: the freed frame blocks the
-heap keeps for the stream by design (trim threshold 64 MiB, core/ros_data/heap.py) and the
+heap keeps for the stream by design (trim threshold 64 MiB, core/streaming/heap.py) and the
 transport's buffers of the largest frame seen (2560x1920 bgr8: 14 MiB). Before the maps' memory
 was given back it kept +210 MiB (+290 MiB at the peak) with 2.3 MB of maps in force."""
 

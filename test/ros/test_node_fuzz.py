@@ -18,7 +18,7 @@ from sensor_msgs.msg import CameraInfo
 from sensor_msgs.srv import SetCameraInfo
 
 from ros_peer import LATCHED, domain_id, parameter_msg, peer, start_node  # noqa: F401
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
 
 CASES = 60  # per surface
 SPEC = ['--ros-args', '-p', 'width:=640', '-p', 'height:=480', '-p', 'hfov:=118', '-p', 'vfov:=90',

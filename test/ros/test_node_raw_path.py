@@ -11,7 +11,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo, Image
 
 from ros_peer import diagnostics_value, domain_id, image_msg, peer, qos, start_node  # noqa: F401
-from zeroshot_calib_ros.core.ros_data.image_frames import ENCODINGS
+from zeroshot_calib_ros.core.streaming.image_frames import ENCODINGS
 
 SPEC = ['-p', 'width:=64', '-p', 'height:=36', '-p', 'hfov:=118', '-p', 'vfov:=69', '-p', 'rectify:=true']
 RELIABLE = qos(ReliabilityPolicy.RELIABLE, depth=100)
@@ -204,7 +204,7 @@ def test_the_benchmarks_remap_relay_publishes_the_nodes_camera_info_then_the_rec
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'benchmarks'))
     import bench_common
     import relay_node
-    from zeroshot_calib_ros.core.ros_data.cdr_image import SerializedImage
+    from zeroshot_calib_ros.core.ros_formats.cdr_image import SerializedImage
     from zeroshot_calib_ros.ros.messages import fill_camera_info
 
     published = []
@@ -276,7 +276,7 @@ def _faults_per_frame(peer, node, frames: int) -> float:
 
 def test_a_stream_of_frames_costs_the_node_no_page_faults(peer, start_node, monkeypatch):
     """1080p bgr8 frames through the node: once it rectifies, a frame costs it no page faults
-    (core/ros_data/heap.py: the frame taken and the frame published stay in the heap), and its
+    (core/streaming/heap.py: the frame taken and the frame published stay in the heap), and its
     start-up log says so. Beside it, the same node under a user's MALLOC_MMAP_THRESHOLD_ (the
     user's setting wins, and the log says that) faults every frame's pages in: what the node did
     at random before, and what this measurement sees when it happens."""

@@ -137,7 +137,7 @@ def test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_a
     is chosen by the node's balance and fov_scale, as the zero-shot one's is."""
     from rcl_interfaces.srv import SetParameters
     from ros_peer import parameter_msg
-    from zeroshot_calib_ros.core.ros_data.rectify import new_camera_matrix
+    from zeroshot_calib_ros.core.ros_formats.rectify import new_camera_matrix
     node = start_node('--ros-args', *SPEC, '-p', 'refine:=true', '-p', 'refine_interval:=3600.0',
                       '-p', 'balance:=0.5', '-p', 'fov_scale:=0.8', '-p', f'camera_info_url:=file://{tmp_path}/c.yaml')
     infos = peer.collect(CameraInfo, 'camera_info', LATCHED)

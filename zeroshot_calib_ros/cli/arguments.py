@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from ..core.estimation.terms import FOV_TOLERANCE_DEG
 from ..core.file_input import MAX_IMAGE_PIXELS
-from ..core.ros_data.calibration_file import DISTORTION_MODELS
+from ..core.ros_formats.calibration_file import DISTORTION_MODELS
 from ..core.zeroshot.numbers import parse_integer, parse_number, parse_whole_number
 from ..core.zeroshot.solver import PROJECTION_CHOICES
 

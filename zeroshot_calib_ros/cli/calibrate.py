@@ -17,8 +17,8 @@ from ..core.estimation.terms import FOV_TOLERANCE_DEG
 from ..core.lens.fitting import DISTORTION_FITS, FIT_WARNING_PX
 from ..core.lens.models import RadialKannalaBrandtCamera
 from ..core.lens.ray_limits import plumb_bob_refusal
-from ..core.ros_data.calibration_file import CameraCalibration, json_safe, solution_summary, summary_text
-from ..core.ros_data.rectify import principal_point_camera_matrix
+from ..core.ros_formats.calibration_file import CameraCalibration, json_safe, solution_summary, summary_text
+from ..core.ros_formats.rectify import principal_point_camera_matrix
 from ..core.zeroshot.solver import NoConvergence, solve_zero_shot
 from ..core.zeroshot.spec import SpecError
 from .arguments import (EXIT_NOT_ADOPTED, EXIT_STATUSES, REPORT_HELP, CliError, add_output_arguments,
@@ -221,7 +221,7 @@ def _spec_solution(spec, fov_tolerance):
 
 def _calibrated_P(calibration, camera, args):
     """``calibration`` with P centred on the calibrated principal point, as ROS camera_calibration
-    writes it for a fisheye (core/ros_data/rectify.principal_point_camera_matrix)."""
+    writes it for a fisheye (core/ros_formats/rectify.principal_point_camera_matrix)."""
     P = np.hstack([principal_point_camera_matrix(camera, args.balance, args.fov_scale), np.zeros((3, 1))])
     return dataclasses.replace(calibration, P=P)
 

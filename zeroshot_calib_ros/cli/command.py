@@ -11,7 +11,7 @@ import sys
 import cv2
 
 from .. import __version__
-from ..core.ros_data.calibration_file import FORMATS, CalibrationFileError
+from ..core.ros_formats.calibration_file import FORMATS, CalibrationFileError
 from ..core.zeroshot.solver import NoConvergence
 from ..core.zeroshot.spec import SpecError
 from . import calibrate, evaluate, presets, rectify, refine, solve

@@ -9,7 +9,7 @@ import os
 from ..core.checkerboard.evaluation import evaluate, evaluation_to_dict, format_tables
 from ..core.lens.models import camera_from_calibration
 from ..core.lens.ray_limits import missing_fov
-from ..core.ros_data.calibration_file import json_safe
+from ..core.ros_formats.calibration_file import json_safe
 from ..core.zeroshot.spec import CameraSpec
 from .arguments import CliError, add_progress_argument, integer
 from .corners import add_corner_arguments, corner_set, fov_spec

@@ -13,8 +13,8 @@ import numpy as np
 
 from ..core.file_input import InputFileError, read_image
 from ..core.lens.fitting import DISTORTION_FITS, FIT_WARNING_PX
-from ..core.ros_data.calibration_file import CalibrationFileError, CameraCalibration, stand_in_note
-from ..core.ros_data.rectify import new_camera_matrix
+from ..core.ros_formats.calibration_file import CalibrationFileError, CameraCalibration, stand_in_note
+from ..core.ros_formats.rectify import new_camera_matrix
 from .arguments import EXIT_NOT_ADOPTED, CliError
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..core.ros_data.rectify import INTERPOLATIONS, Rectifier, new_camera_matrix
+from ..core.ros_formats.rectify import INTERPOLATIONS, Rectifier, new_camera_matrix
 from ..core.zeroshot.presets import spec_with_preset
 from ..core.zeroshot.solver import solve_zero_shot
 from .arguments import (IMAGE_BUDGET, SOLVE_SPEC_FIELDS, CliError, add_circle_arguments, add_fov_tolerance_argument,

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from ..core.lens.fitting import DISTORTION_FITS
-from ..core.ros_data.calibration_file import CameraCalibration, json_safe, solution_summary, summary_text
+from ..core.ros_formats.calibration_file import CameraCalibration, json_safe, solution_summary, summary_text
 from ..core.zeroshot.presets import spec_with_preset
 from ..core.zeroshot.solver import solve_zero_shot
 from .arguments import (EXIT_NOT_ADOPTED, EXIT_STATUSES, IMAGE_BUDGET, REPORT_HELP, CliError, add_circle_arguments,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import os
 
-from ..core.ros_data.calibration_file import CalibrationFileError, CameraCalibration, solution_summary, summary_text
+from ..core.ros_formats.calibration_file import CalibrationFileError, CameraCalibration, solution_summary, summary_text
 from ..core.zeroshot.batch import camera_name_of, read_batch, yaml_file_name
 from ..core.zeroshot.presets import spec_with_preset
 from ..core.zeroshot.solver import NoConvergence, solve_zero_shot

@@ -20,9 +20,9 @@ _EXPORTS = {
     'CameraModel': '.lens.models', 'KannalaBrandtCamera': '.lens.models', 'PinholeCamera': '.lens.models',
     'PlumbBobCamera': '.lens.models', 'ZeroShotCamera': '.lens.models', 'camera_from_calibration': '.lens.models',
     'ZeroShotSolution': '.zeroshot.solver', 'solve_zero_shot': '.zeroshot.solver', 'NoConvergence': '.zeroshot.solver',
-    'CameraInfoModel': '.ros_data.camera_info_model',
-    'CameraCalibration': '.ros_data.calibration_file',
-    'Rectifier': '.ros_data.rectify',
+    'CameraInfoModel': '.ros_formats.camera_info_model',
+    'CameraCalibration': '.ros_formats.calibration_file',
+    'Rectifier': '.ros_formats.rectify',
 }
 
 __all__ = list(_EXPORTS)

@@ -1,12 +1,12 @@
 """sensor_msgs/CameraInfo <-> CameraCalibration (the node's only message conversions), as a
-message or as its serialized bytes (the per-frame path, core/ros_data/cdr_image.py)."""
+message or as its serialized bytes (the per-frame path, core/ros_formats/cdr_image.py)."""
 from __future__ import annotations
 
 import numpy as np
 from sensor_msgs.msg import CameraInfo
 
-from ..core.ros_data.calibration_file import CameraCalibration, RegionOfInterest
-from ..core.ros_data.cdr_image import serialize_camera_info
+from ..core.ros_formats.calibration_file import CameraCalibration, RegionOfInterest
+from ..core.ros_formats.cdr_image import serialize_camera_info
 
 
 def camera_info_fields(calibration: CameraCalibration) -> dict:

@@ -2,8 +2,12 @@
 
     ros2 run zeroshot_calib_ros node --ros-args -p width:=1920 -p height:=1080 -p hfov:=118 -p vfov:=69
 
-Only ROS plumbing lives here (parameters, topics, the service, QoS); every computation is in
-``zeroshot_calib_ros.core``.
+Only ROS plumbing lives here (parameters, topics, the service, QoS, timers, logging); every
+computation is in ``zeroshot_calib_ros.core``, the node's own in rclpy-free collaborators in
+``core/streaming/``: ``frame_path`` (a frame -> its CameraInfo bytes, its rectified bytes or why
+it is skipped), ``calibration_cycle`` (which calibration is in force, the candidates from the
+spec, a file, parameters, set_camera_info and refinement, the saves), ``refinement_control`` (the
+refiner's life cycle) and ``diagnostics`` (the /diagnostics status and the state texts).
 
 Threads: every ROS callback runs on the executor thread, and only there is the calibration in
 force (``_active``) replaced. Rectification maps of a new calibration (parameter change,
@@ -27,7 +31,7 @@ subscribes is in force at once (no maps to wait for). The start-up log and /diag
 say which state the node is in.
 
 Frames (issue 14) are taken as the serialized bytes DDS delivered (``raw=True``): the Image header
-is parsed in place (``core/ros_data/cdr_image.py``), the pixels are viewed without a copy, remapped
+is parsed in place (``core/ros_formats/cdr_image.py``), the pixels are viewed without a copy, remapped
 into a reused buffer laid out as the serialized image_rect, and published as bytes, as is a
 serialized CameraInfo whose stamp is patched. Frames that reader does not decode exactly as the
 ROS deserializer would (another CDR encapsulation, unusual strings) are deserialized and take the
@@ -67,19 +71,21 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 from sensor_msgs.srv import SetCameraInfo  # noqa: E402
 
-from ..core.lens.fitting import FIT_WARNING_PX  # noqa: E402
-from ..core.ros_data.calibration_file import (CalibrationFileError, CameraCalibration,  # noqa: E402
+from ..core.ros_formats.calibration_file import (CalibrationFileError, CameraCalibration,  # noqa: E402
                                               resolve_camera_info_url, summary_text)
-from ..core.ros_data.cdr_image import (CdrError, NotPlainCdr, SerializedImage, parse_image,  # noqa: E402
-                                       patch_stamp, pixel_bytes)
-from ..core.ros_data.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded,  # noqa: E402
-                                          binned_roi_size, binning_or_roi_reason, check_frame,
-                                          check_map_budget, default_map_budget, image_array, map_bytes)
-from ..core.ros_data.heap import keep_frames_in_heap, resident_bytes  # noqa: E402
-from ..core.ros_data.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
-from ..core.ros_data.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
+from ..core.streaming.calibration_cycle import (REFINABLE_SOURCES, CalibrationCycle,  # noqa: E402
+                                               refinement_texts, summary_warnings)
+from ..core.ros_formats.cdr_image import CdrError, NotPlainCdr, parse_image, pixel_bytes  # noqa: E402
+from ..core.streaming.diagnostics import calibration_status, frame_path_text, rectify_text  # noqa: E402
+from ..core.streaming.frame_path import FramePath  # noqa: E402
+from ..core.streaming.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded,  # noqa: E402
+                                          binning_or_roi_reason, default_map_budget, image_array)
+from ..core.streaming.heap import keep_frames_in_heap, resident_bytes  # noqa: E402
+from ..core.streaming.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
+from ..core.streaming.refinement_control import RefinementControl, refine_settings  # noqa: E402
+from ..core.streaming.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
                                              RECTIFICATION_PARAMETERS, Settings, changed_parameters,
-                                             number_in_range, params_file_errors, solve_from_settings,
+                                             number_in_range, params_file_errors,
                                              unknown_parameter_warnings,
                                              usage_text)
 from ..core.zeroshot.solver import NoConvergence  # noqa: E402
@@ -101,7 +107,6 @@ wait for the reply anyway) so that its "success" means in force; a larger calibr
 answered as accepted, with its maps being built, and saved when it is in force."""
 FRAME_PATH_ENV = 'ZEROSHOT_CALIB_FRAME_PATH'
 """'serialized' (the default) or 'message': how frames are taken and published (see the module)."""
-_INFO_TEMPLATES_CACHED = 16
 FIRST_FRAME_WAIT_SECONDS = 0.25
 """How long a frame waits for the maps being built because image_rect just got a subscriber (so
 that the first frame after a subscriber appears is rectified): 1080p maps took 0.19-0.58 s on
@@ -109,8 +114,6 @@ every core of a 2-core machine busy with other jobs, 640x360 maps 0.06-0.09 s. B
 the frames queued behind it (image_raw keeps 10) are not lost; the frames that come while maps
 take longer are counted as maps_pending and not rectified."""
 REFINE_PARAMETERS = ('refine', 'refine_interval')
-REFINABLE_SOURCES = ('spec', 'refined')
-"""Sources of a calibration that ``refine`` refines (never a file's or set_camera_info's)."""
 
 
 def frame_path_choice(environ=os.environ) -> tuple:
@@ -160,7 +163,6 @@ class ZeroShotCalibNode(Node):
             self._log('warning', text)
         self._stats = Counter()
         self._warned_at = {}
-        self._uncalibrated = None  # (size, why) while frames come that no calibration describes
         self._last_image_time = None  # time.monotonic() of the last frame
         # Until an image publisher is seen: reliable CameraInfo (what late joiners and the
         # default subscriber QoS want), best-effort image_raw (accepts either kind of publisher).
@@ -170,14 +172,12 @@ class ZeroShotCalibNode(Node):
         self._rect_subscribers = 0  # image_rect's matched subscriptions, as last read
         self._rect_ever_subscribed = False
         self._ahead_jobs = []  # MapJobs of the maps built when image_rect got a subscriber
-        self._last_size = None  # (width, height) of the last frame that got a CameraInfo
-        self._failed_maps = {}  # (id(active), width, height) -> (active, why) of maps that failed to build
         self._out_buffer = None
         self._rect_msg = Image()
         self._info_cache = (None, None)  # (calibration, its CameraInfo), reused frame after frame
         self._serialized, self._frame_path_reason = frame_path_choice()
-        self._rect_serialized = SerializedImage()  # image_rect, reused frame after frame
-        self._info_templates = {}  # (id(calibration), frame_id) -> (calibration, serialized CameraInfo)
+        # the frame path's state: last frame size, uncalibrated frames, failed maps, reused buffers
+        self._frames = FramePath(serialized_camera_info)
         self._maps_build_ms = float('nan')
         self._reverting = False
 
@@ -186,27 +186,21 @@ class ZeroShotCalibNode(Node):
         self._map_budget_why = 'as set'
         if not self._map_budget:
             self._map_budget, self._map_budget_why = default_map_budget()
-        self._save_when_in_force = None  # (calibration, generation) of set_camera_info, saved once in force
         settings = Settings.from_values(self._values())
         self._settings = settings
-        self._refine, self._refine_interval = self._refine_values(self._values())
-        self._refiner = None  # an online_refinement.OnlineRefiner while refine is on
-        # (Kannala-Brandt camera, uncertainty px) of the last refinement adopted: a restarted
-        # refiner starts from it and must beat it (0.7x), while a refined calibration is in force
-        self._refined = None
-        self._refine_off = 'refine is false'  # why no refiner runs (diagnostics)
+        # the refiner while refine is on: started, restarted and stopped with the newest calibration
+        self._refinement = RefinementControl(*refine_settings(self._values()), log=self._log, due=self._due)
         url = self.get_parameter('camera_info_url').value
-        self._url_path = resolve_camera_info_url(url, settings.camera_name)
+        # which calibration is in force, the newest accepted, pending saves, the last refinement
+        self._cycle = CalibrationCycle(resolve_camera_info_url(url, settings.camera_name), self._map_budget_bytes)
         # The calibration is in force at once (CameraInfo needs no maps); its maps are built on
         # the builder thread, and frames that come before they are ready are not rectified.
         try:
-            self._active = self._initial_calibration(settings)
+            self._cycle.start(settings, self._log)
         except Exception:
             self._flush_startup_log()  # what was said before the failure
             raise
-        self._values_in_force = self._values()
-        self._newest = self._active  # the last calibration accepted (in force or being built)
-        self._generation = self._active.generation
+        self._cycle.values_in_force = self._values()
         self._create_info_publisher()
         # One at start-up whatever the camera does: transient local then holds a calibration for
         # late joiners even if a camera exists but has not sent a frame yet.
@@ -228,7 +222,7 @@ class ZeroShotCalibNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._flush_startup_log()
         self.get_logger().info(self._interfaces_text())
-        self._follow_with_refiner(self._active)
+        self._follow_with_refiner(self._cycle.active)
 
     def _flush_startup_log(self):
         startup_log, self._startup_log = self._startup_log, None
@@ -263,59 +257,6 @@ class ZeroShotCalibNode(Node):
             values[p.name] = p.value
         return values
 
-    def _initial_calibration(self, settings: Settings) -> ActiveCalibration:
-        path = self._url_path
-        self._file_state = f'none at {path} yet: set_camera_info will save there'
-        if os.path.isfile(path):
-            try:
-                calibration = CameraCalibration.load(path)
-                active = ActiveCalibration(calibration, calibration.camera(), f'file {path}', 0,
-                                           settings.rectify, settings.interpolation, build_maps=False,
-                                           map_budget_bytes=self._map_budget_bytes)
-            except (CalibrationFileError, ValueError) as exc:
-                self._log('error', f'ignoring camera_info_url {path}: {exc}; solving from the spec '
-                          'instead (set_camera_info will overwrite the file)')
-                self._file_state = f'{path} unreadable ({exc}): set_camera_info will overwrite it'
-            else:
-                for warning in getattr(calibration, 'load_warnings', ()):
-                    self._log('warning', f'{path}: {warning}')
-                self._warn_if_file_differs(calibration, settings, path)
-                self._log(
-                    'info', f'calibration loaded from {path} (takes precedence over the spec):\n'
-                    f'  {calibration.width} x {calibration.height} px, camera_name {calibration.camera_name}\n'
-                    f'  K {calibration.K.tolist()}\n  {calibration.distortion_model} D {calibration.D.tolist()}')
-                self._file_state = f'loaded {path}; set_camera_info saves there'
-                return active
-        active, summary = solve_from_settings(settings, 0, build_maps=False, map_budget_bytes=self._map_budget_bytes)
-        self._log('info', 'zero-shot calibration from the spec sheet:\n' + summary_text(summary))
-        self._warn_spec(summary)
-        self._warn_fit(summary)
-        return active
-
-    def _warn_if_file_differs(self, calibration: CameraCalibration, settings: Settings, path: str):
-        spec = settings.spec
-        if calibration.camera_name != settings.camera_name:
-            self._log('warning', f'{path} is the calibration of camera_name {calibration.camera_name!r}, '
-                      f'this node is camera_name {settings.camera_name!r}; using the file')
-        if (calibration.width, calibration.height) != (spec.width, spec.height):
-            self._log('warning', f'{path} is for {calibration.width}x{calibration.height} images, the spec '
-                      f'says {spec.width}x{spec.height}; using the file (frames of the spec '
-                      'size get scaled intrinsics if the aspect ratio agrees)')
-
-    def _warn_spec(self, summary: Optional[dict]):
-        """The spec's FOVs that the solved camera misses (core/zeroshot/consistency.py), each a
-        WARN: the calibration is still adopted, and published, as the spec gives it."""
-        for warning in (summary or {}).get('warning', ()):
-            self._log('warning', f'spec: {warning}')
-
-    def _warn_fit(self, summary: Optional[dict]):
-        if summary and summary['fit_error_px'] > FIT_WARNING_PX:
-            self._log(
-                'warning', f"the published {summary['distortion_model']} model departs from the zero-shot lens by up to "
-                f"{summary['fit_error_px']:.3g} px (more than {FIT_WARNING_PX:g} px): consumers of CameraInfo "
-                'see that error' + (' (use distortion_model: equidistant for a lens this wide)'
-                                    if summary['distortion_model'] != 'equidistant' else ''))
-
     def _interfaces_text(self) -> str:
         def qos_text(reliability, durability='volatile', depth=5):
             return f'{reliability.name.lower()}, {durability}, depth {depth}'
@@ -333,26 +274,17 @@ class ZeroShotCalibNode(Node):
             f'  publishes  {self._diagnostics_pub.topic_name} (diagnostic_msgs/DiagnosticArray, 1 Hz)',
             f'  rectify    {self._rectify_text()}'
             f' (maps at most max_map_memory_mb = {self._map_budget}: {self._map_budget_why})',
-            f'  calibration file: {self._file_state}',
+            f'  calibration file: {self._cycle.file_state}',
             f'  frame path {self._frame_path_text()}',
             f'  executor   {self._executor_text}',
             f'  memory     {self._heap_text}',
         ])
 
     def _rectify_text(self) -> str:
-        """'off', 'on, lazy: no subscriber yet', 'on, lazy: no subscriber', 'on: 1 subscriber'."""
-        if not self._active.rectify_enabled:
-            return 'off'
-        count = self._rect_subscribers
-        if count:
-            return f'on: {count} subscriber{"s" if count > 1 else ""}'
-        return 'on, lazy: no subscriber' + ('' if self._rect_ever_subscribed else ' yet')
+        return rectify_text(self._cycle.active.rectify_enabled, self._rect_subscribers, self._rect_ever_subscribed)
 
     def _frame_path_text(self) -> str:
-        if self._serialized:
-            return ('serialized: image_raw taken as CDR bytes, image_rect and camera_info published as bytes'
-                    + (f' ({self._frame_path_reason})' if self._frame_path_reason else ''))
-        return f'message: sensor_msgs/Image objects ({self._frame_path_reason})'
+        return frame_path_text(self._serialized, self._frame_path_reason)
 
     def _create_endpoints(self):
         """Publishers and subscription with the reliability of the image publisher (see housekeeping)."""
@@ -381,12 +313,12 @@ class ZeroShotCalibNode(Node):
 
     def _sync_rect_publisher(self):
         """image_rect is advertised only while rectify is on (it would collide with image_proc's)."""
-        if self._active.rectify_enabled and self._rect_pub is None:
+        if self._cycle.active.rectify_enabled and self._rect_pub is None:
             # matched: a subscriber's arrival starts its maps before the next frame comes
             events = PublisherEventCallbacks(matched=self._on_rect_matched) if self._matched_events else None
             self._rect_pub = self.create_publisher(Image, 'image_rect', self._image_qos(self._reliability),
                                                    event_callbacks=events)
-        elif not self._active.rectify_enabled and self._rect_pub is not None:
+        elif not self._cycle.active.rectify_enabled and self._rect_pub is not None:
             self.destroy_publisher(self._rect_pub)
             self._rect_pub = None
         self._rect_has_subscriber()
@@ -406,10 +338,10 @@ class ZeroShotCalibNode(Node):
         self._rect_subscribers = count
         if count and not before:
             self._rect_ever_subscribed = True
-            sizes = self._maps_ahead(self._active) if self._newest is self._active else []
+            sizes = self._maps_ahead(self._cycle.active) if self._cycle.newest is self._cycle.active else []
             self._log('info', 'image_rect has a subscriber: rectifying frames' +
                       (f' (maps of {", ".join(f"{w}x{h}" for w, h in sizes)} being built)' if sizes else ''))
-        elif not count and self._active.rectify_enabled:
+        elif not count and self._cycle.active.rectify_enabled:
             self._log('info', 'image_rect has no subscriber: frames are not rectified until one subscribes '
                       '(CameraInfo still goes out with every frame)')
         return count > 0
@@ -420,16 +352,7 @@ class ZeroShotCalibNode(Node):
         if not active.rectify_enabled or binning_or_roi_reason(active.calibration):
             return []
         self._ahead_jobs = [job for job in self._ahead_jobs if not job.finished.is_set()]
-        self._failed_maps.clear()  # tried again for the new subscriber
-        sizes = [active.size]
-        if self._last_size is not None and self._last_size != active.size:
-            width, height = self._last_size
-            try:
-                active.calibration_for(width, height)
-                check_map_budget(width, height, self._map_budget_bytes - map_bytes(*active.size))
-                sizes.append(self._last_size)
-            except (FrameSkipped, MapBudgetExceeded):
-                pass  # its frames say why when they come
+        sizes = self._frames.ahead_sizes(active, self._map_budget_bytes)
         building = []
         for width, height in sizes:
             if active.rectifier_for(width, height) is None:
@@ -469,7 +392,7 @@ class ZeroShotCalibNode(Node):
     def _publish_own_info(self):
         """A CameraInfo stamped now (no image to take the header from)."""
         msg = CameraInfo()
-        fill_camera_info(msg, self._active.calibration)
+        fill_camera_info(msg, self._cycle.active.calibration)
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = self.get_parameter('frame_id').value
         self._info_pub.publish(msg)
@@ -481,7 +404,7 @@ class ZeroShotCalibNode(Node):
         self._process_message(msg)
 
     def _process_message(self, msg: Image):
-        active = self._active  # one snapshot per frame: CameraInfo and image_rect agree
+        active = self._cycle.active  # one snapshot per frame: CameraInfo and image_rect agree
         calibration = self._frame_calibration(active, msg.width, msg.height, msg.step, msg.encoding, len(msg.data))
         if calibration is None:
             return
@@ -489,7 +412,7 @@ class ZeroShotCalibNode(Node):
         info.header = msg.header
         self._info_pub.publish(info)
         self._stats['camera_info_published'] += 1
-        if self._refiner is not None:
+        if self._refinement.refiner is not None:
             self._offer_frame(msg.data, msg.width, msg.height, msg.step, msg.encoding, msg.is_bigendian, copy=True)
         rectifier = self._frame_rectifier(active, calibration, msg.width, msg.height)
         if rectifier is None:
@@ -513,14 +436,14 @@ class ZeroShotCalibNode(Node):
         except CdrError as exc:
             self._skip(FrameSkipped('malformed', str(exc)))
             return
-        active = self._active  # one snapshot per frame: CameraInfo and image_rect agree
+        active = self._cycle.active  # one snapshot per frame: CameraInfo and image_rect agree
         width, height = header.width, header.height
         calibration = self._frame_calibration(active, width, height, header.step, header.encoding, header.data_size)
         if calibration is None:
             return
-        publish_serialized(self._info_pub, self._serialized_info_for(calibration, header))
+        publish_serialized(self._info_pub, self._frames.serialized_info(calibration, header))
         self._stats['camera_info_published'] += 1
-        if self._refiner is not None:  # raw is an immutable bytes object: its pixels are held, not copied
+        if self._refinement.refiner is not None:  # raw is an immutable bytes object: its pixels are held, not copied
             self._offer_frame(pixel_bytes(raw, header), width, height, header.step, header.encoding,
                               header.is_bigendian, copy=False)
         rectifier = self._frame_rectifier(active, calibration, width, height)
@@ -551,29 +474,14 @@ class ZeroShotCalibNode(Node):
                            nbytes: int) -> Optional[CameraCalibration]:
         """The calibration of a frame, or None (skipped and counted)."""
         try:
-            # the same checks whatever rectify is: no CameraInfo for an image the message lacks
-            check_frame(width, height, step, encoding, nbytes)
-            if binning_or_roi_reason(active.calibration):
-                # CameraInfo as given (binning and roi tell consumers how the frame maps); no scaling
-                calibration = active.calibration
-                if (width, height) != binned_roi_size(calibration):
-                    raise FrameSkipped('aspect', f'image {width}x{height} is not the {"x".join(map(str, binned_roi_size(calibration)))} '
-                                       'that the calibration\'s binning and roi describe')
-            else:
-                calibration = active.calibration_for(width, height)
-            self._uncalibrated = None
-            self._last_size = (width, height)
-            return calibration
+            return self._frames.calibration(active, width, height, step, encoding, nbytes)
         except FrameSkipped as exc:
             if exc.reason == 'aspect':  # said for each size (throttled), and an ERROR in /diagnostics
-                self._uncalibrated = ((width, height), str(exc))
                 if len(self._warned_at) > _WARNED_KEYS_KEPT:  # a stream of ever new sizes
                     self._warned_at.clear()
                 self._skip(exc, key=f'aspect {width}x{height}')
             else:
                 self._skip(exc)
-        except Exception as exc:  # never let a frame take the node down
-            self._skip(FrameSkipped('error', f'cannot calibrate frame: {exc}'))
         return None
 
     def _frame_rectifier(self, active: ActiveCalibration, calibration: CameraCalibration, width: int, height: int):
@@ -597,24 +505,11 @@ class ZeroShotCalibNode(Node):
     def _request_maps(self, active: ActiveCalibration, calibration: CameraCalibration, width: int, height: int):
         """A frame whose maps are not built: skipped (counted) while the builder builds them, so
         that one frame of a new size never stalls the stream."""
-        reason = binning_or_roi_reason(calibration)
-        if reason:
-            raise FrameSkipped('binning_roi', reason)
-        failed = self._failed_maps.get((id(active), width, height))
-        if failed is not None and failed[0] is active:
-            raise FrameSkipped('maps_failed', f'rectification maps of {width}x{height} could not be built '
-                               f'({failed[1]}); frames of that size are not rectified')
-        if (width, height) != active.size:
-            try:
-                check_map_budget(width, height, self._map_budget_bytes - map_bytes(*active.size),
-                                 what='rectification maps of this frame size (beside the configured size)')
-            except MapBudgetExceeded as exc:
-                raise FrameSkipped('maps_budget', str(exc)) from None
+        self._frames.check_maps_request(active, calibration, width, height, self._map_budget_bytes)
         # (the configured size's maps too, when they are missing: being built since image_rect got
         # a subscriber, the request returns that build)
         self._builder.request_size(active, width, height)
-        raise FrameSkipped('maps_pending', f'rectification maps of {width}x{height} are being built; '
-                           'frames of that size are not rectified until they are ready')
+        raise self._frames.maps_pending(width, height)
 
     def _camera_info_for(self, calibration: CameraCalibration) -> CameraInfo:
         """The CameraInfo of ``calibration``, filled once and reused (only the header changes;
@@ -626,29 +521,8 @@ class ZeroShotCalibNode(Node):
             self._info_cache = (calibration, info)
         return info
 
-    def _serialized_info_for(self, calibration: CameraCalibration, header) -> bytearray:
-        """The serialized CameraInfo of ``calibration`` with the frame's header: a template per
-        calibration and frame_id, built once; only the stamp is written frame after frame
-        (publishing copies the bytes before it returns)."""
-        key = (id(calibration), header.frame_id)
-        cached = self._info_templates.get(key)
-        if cached is None or cached[0] is not calibration:
-            if len(self._info_templates) >= _INFO_TEMPLATES_CACHED:
-                self._info_templates.clear()
-            cached = self._info_templates[key] = (calibration, serialized_camera_info(calibration, header.frame_id))
-        template = cached[1]
-        patch_stamp(template, header.sec, header.nanosec)
-        return template
-
     def _publish_rectified_serialized(self, raw: bytes, header, rectifier):
-        """The pixels viewed in ``raw`` (no copy) are remapped into the buffer of the serialized
-        image_rect, which is published as it is."""
-        image = image_array(pixel_bytes(raw, header), header.width, header.height, header.step, header.encoding,
-                            header.is_bigendian)
-        out = self._rect_serialized.prepare(header.sec, header.nanosec, header.frame_id, header.encoding,
-                                            image.shape, image.dtype)
-        rectifier.rectify(image, out=out)
-        publish_serialized(self._rect_pub, self._rect_serialized.buffer)
+        publish_serialized(self._rect_pub, self._frames.rectified_serialized(raw, header, rectifier))
         self._stats['frames_rectified'] += 1
 
     def _publish_rectified(self, msg: Image, rectifier):
@@ -691,8 +565,8 @@ class ZeroShotCalibNode(Node):
             self._on_calibration_built()
         self._match_image_reliability()
         self._rect_has_subscriber()
-        for size in self._active.release_unused(OTHER_SIZE_IDLE_SECONDS):
-            self._builder.forget_size(self._active, *size)
+        for size in self._cycle.active.release_unused(OTHER_SIZE_IDLE_SECONDS):
+            self._builder.forget_size(self._cycle.active, *size)
             self.get_logger().info(f'rectification maps of {size[0]}x{size[1]} released (no such frame '
                                    f'for {OTHER_SIZE_IDLE_SECONDS:g} s)')
         self._poll_refiner()
@@ -716,37 +590,19 @@ class ZeroShotCalibNode(Node):
             self._create_endpoints()
 
     def _publish_diagnostics(self):
-        status = DiagnosticStatus(level=DiagnosticStatus.OK, name=f'{self.get_name()}: calibration',
-                                  hardware_id=self._active.calibration.camera_name,
-                                  message=f'calibration from {self._active.source}')
+        if self._frames.uncalibrated is not None and not self._camera_exists():
+            self._frames.uncalibrated = None  # the camera has stopped
         pending = self._builder.pending
-        values = {'source': self._active.source, 'generation': self._active.generation,
-                  'frame_path': 'serialized' if self._serialized else f'message ({self._frame_path_reason})',
-                  'executor': self._executor_text,
-                  'rectify': self._rectify_text(), 'image_rect_subscribers': self._rect_subscribers,
-                  'frames_rectified': 0, 'frames_not_rectified_no_subscriber': 0,
-                  'fx': self._active.calibration.K[0, 0], 'qos_reliability': self._reliability.name,
-                  'pending_generation': pending.active.generation if pending else '',
-                  'maps_build_ms': f'{self._maps_build_ms:.1f}',
-                  'map_memory_mb': f'{self._active.map_memory_bytes / 2**20:.1f}',
-                  'frame_buffer_mb': f'{self._active.frame_buffer_bytes / 2**20:.1f}',
-                  'process_rss_mb': f'{resident_bytes() / 2**20:.1f}', **self._refine_values_text(),
-                  **self._stats}
-        if values['refine_state'] == 'failed':
-            status.level = DiagnosticStatus.WARN
-        if self._active.spec_warnings:  # a calibration from a spec whose FOVs it does not show
-            status.level = DiagnosticStatus.WARN
-            status.message += ": the spec's FOVs do not fit the image (spec_warning)"
-            values['spec_warning'] = ' | '.join(self._active.spec_warnings)
-        if self._active.assumption:  # usable, only less certain: said, not a WARN level
-            values['assumption'] = self._active.assumption
-        if self._uncalibrated is not None and not self._camera_exists():
-            self._uncalibrated = None  # the camera has stopped
-        if self._uncalibrated is not None:
-            (width, height), why = self._uncalibrated
-            status.level = DiagnosticStatus.ERROR
-            status.message = f'no CameraInfo for the {width}x{height} frames: {why}'
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        state = calibration_status(
+            self.get_name(), self._cycle.active, serialized=self._serialized, frame_path_reason=self._frame_path_reason,
+            executor=self._executor_text, rectify=self._rectify_text(), rect_subscribers=self._rect_subscribers,
+            qos_reliability=self._reliability.name, pending_generation=pending.active.generation if pending else '',
+            maps_build_ms=self._maps_build_ms, process_rss_bytes=resident_bytes(),
+            refine=self._refinement.diagnostics(),
+            stats=self._stats, uncalibrated=self._frames.uncalibrated)
+        status = DiagnosticStatus(level=getattr(DiagnosticStatus, state.level), name=state.name,
+                                  hardware_id=state.hardware_id, message=state.message,
+                                  values=[KeyValue(key=k, value=str(v)) for k, v in state.values.items()])
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
         self._diagnostics_pub.publish(msg)
@@ -765,7 +621,7 @@ class ZeroShotCalibNode(Node):
         refine_values = None
         if names & set(REFINE_PARAMETERS):
             try:
-                refine_values = self._refine_values(self._values(parameters))
+                refine_values = refine_settings(self._values(parameters))
             except SpecError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
         if not names & set(CALIBRATION_PARAMETERS + RECTIFICATION_PARAMETERS):
@@ -774,24 +630,9 @@ class ZeroShotCalibNode(Node):
             return SetParametersResult(successful=True)
         # Checked and solved here, whole (a rejection must name its reason, and a success means
         # adopted); the maps are built on the builder thread and swapped in when ready.
-        basis = self._newest
-        generation = self._generation + 1
         values = self._values(parameters)
-        summary = None
         try:
-            settings = Settings.from_values(values)
-            if names & set(CALIBRATION_PARAMETERS) or basis.source == 'spec':
-                active, summary = solve_from_settings(settings, generation, build_maps=False,
-                                                      map_budget_bytes=self._map_budget_bytes)
-            else:  # a file / set_camera_info calibration stays; only P or the maps change
-                new_p = bool(names & {'balance', 'fov_scale'})
-                # with_rectification numbers its result one after the calibration it starts from
-                active = ActiveCalibration(basis.calibration, basis.camera, basis.source,
-                                           generation - 1 if new_p else generation,
-                                           settings.rectify, settings.interpolation, build_maps=False,
-                                           map_budget_bytes=self._map_budget_bytes)
-                if new_p:
-                    active = active.with_rectification(settings.balance, settings.fov_scale, build_maps=False)
+            settings, active, summary = self._cycle.for_parameters(names, values)
         except (SpecError, CalibrationFileError, NoConvergence, ValueError) as exc:
             reason = str(exc)
             if len(reason) > 1000:  # a message quoting a huge value: cut like one
@@ -806,14 +647,12 @@ class ZeroShotCalibNode(Node):
             return SetParametersResult(successful=False, reason=reason)
         self._settings = settings
         if refine_values is not None:
-            self._refine, self._refine_interval = refine_values
-            if self._refiner is not None:
-                self._refiner.interval = self._refine_interval
+            self._refinement.configure(*refine_values)
         changed = ', '.join(f'{p.name}={value_text(p.value)}' for p in parameters)
         self._adopt(active, f'parameters changed ({changed}), re-solved:\n' + summary_text(summary)
                     if summary else f'parameters changed ({changed})', values)
-        self._warn_spec(summary)
-        self._warn_fit(summary)
+        for warning in summary_warnings(summary):
+            self._log('warning', warning)
         return SetParametersResult(successful=True)
 
     # --- calibrations swapped in when their maps are ready --------------------------------
@@ -821,8 +660,7 @@ class ZeroShotCalibNode(Node):
                every_core: bool = False) -> MapJob:
         """``active`` in force once its maps are built (at once without rectification). Later
         changes build on it (``_newest``) even before it is in force."""
-        self._generation = max(self._generation, active.generation)
-        self._newest = active
+        self._cycle.accept(active)
         self._follow_with_refiner(active)
         job = MapJob(active, log, values=values if values is not None else self._values())
         if not active.rectify_enabled or not self._rect_has_subscriber():
@@ -857,7 +695,7 @@ class ZeroShotCalibNode(Node):
             if job.size is not None:
                 if job.error is not None:
                     self._stats['size_maps_failed'] += 1
-                    self._failed_maps[(id(job.active), *job.size)] = (job.active, str(job.error))
+                    self._frames.maps_failed(job.active, job.size, str(job.error))
                     self.get_logger().warning(f'rectification maps of {job.size[0]}x{job.size[1]} not built: '
                                               f'{job.error}; frames of that size stay unrectified')
                 else:
@@ -875,7 +713,7 @@ class ZeroShotCalibNode(Node):
             if job.active.rectify_enabled:
                 self.get_logger().info(f'rectification maps of generation {job.active.generation} built '
                                        f'in {job.seconds * 1e3:.0f} ms')
-            if job.active is not self._active:
+            if job.active is not self._cycle.active:
                 self._swap_in(job)
 
     def _calibration_failed(self, job: MapJob):
@@ -884,14 +722,11 @@ class ZeroShotCalibNode(Node):
         to the values in force."""
         self._stats['calibration_build_failed'] += 1
         self._drop_pending_save(job.active.generation, f'building its maps failed: {job.error!r}')
-        if job.active is not self._newest:
+        if not self._cycle.build_failed(job.active):
             self.get_logger().warning(f'calibration (generation {job.active.generation}) not adopted, '
                                       f'building its maps failed: {job.error!r}; a newer change is pending')
             return
-        self._newest = self._active
-        restore = [Parameter(name, value=value) for name, value in self._values_in_force.items()
-                   if name in CALIBRATION_PARAMETERS + RECTIFICATION_PARAMETERS and
-                   self.get_parameter(name).value != value]
+        restore = [Parameter(name, value=value) for name, value in self._cycle.values_to_restore(self._values()).items()]
         self._reverting = True
         try:
             self.set_parameters_atomically(restore)
@@ -904,204 +739,69 @@ class ZeroShotCalibNode(Node):
             f'({", ".join(f"{p.name}={p.value!r}" for p in restore) or "unchanged"})')
 
     def _swap_in(self, job: MapJob):
-        if job.active.generation <= self._active.generation:
+        if not self._cycle.swap_in(job.active, job.values):
             return  # superseded while it was built
-        self._active = job.active
-        self._failed_maps.clear()
-        if job.values is not None:
-            self._values_in_force = job.values
+        self._frames.failed_maps.clear()
         self._stats['calibrations_adopted'] += 1
         self._sync_rect_publisher()
         if job.log:
             self.get_logger().info(job.log)
         self._on_info_timer()  # late joiners see the change at once (unless a camera publishes)
-        pending = self._save_when_in_force
-        if pending is not None and job.active.generation >= pending[1]:
-            if job.active.source == 'set_camera_info':  # it, or a change of its P / maps
-                self._save_when_in_force = None
-                self.get_logger().info(f'calibration from set_camera_info in force{self._save_camera_info(pending[0])[1]}')
-            else:
-                self._drop_pending_save(job.active.generation, f'{job.active.source} is in force instead')
+        said = self._cycle.save_in_force(job.active)
+        if said is not None and said[1] is not None:
+            self._log(*said)
 
     def _drop_pending_save(self, generation: int, why: str):
-        pending = self._save_when_in_force
-        if pending is not None and generation >= pending[1]:
-            self._save_when_in_force = None
-            self.get_logger().warning(f'calibration from set_camera_info (generation {pending[1]}) not adopted '
-                                      f'and not saved: {why}')
-
-    def _save_camera_info(self, calibration: CameraCalibration) -> tuple:
-        """(saved, text for the reply / log) of saving a set_camera_info calibration in force."""
-        try:
-            calibration.save(self._url_path)
-            return True, f' and saved to {self._url_path}'
-        except (OSError, CalibrationFileError) as exc:
-            return False, f' but NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'
+        text = self._cycle.drop_pending_save(generation, why)
+        if text is not None:
+            self.get_logger().warning(text)
 
     def destroy_node(self):
         builder = getattr(self, '_builder', None)
         if builder is not None:
             builder.stop()
-        refiner = getattr(self, '_refiner', None)
-        if refiner is not None:
-            refiner.stop('the node is shutting down')
-            refiner.join(3.0)
+        refinement = getattr(self, '_refinement', None)
+        if refinement is not None:
+            refinement.shutdown()
         return super().destroy_node()
 
     # --- refine: the calibration refined from straight lines in the frames ------------------
-    @staticmethod
-    def _refine_values(values: dict) -> tuple:
-        """(refine, refine_interval) checked, else SpecError naming the allowed values."""
-        if not isinstance(values['refine'], bool):
-            raise SpecError('refine', values['refine'], 'true or false')
-        return values['refine'], number_in_range('refine_interval', values['refine_interval'], 0.1, 3600.0)
-
     def _set_refine(self, refine: bool, interval: float):
-        self._refine, self._refine_interval = refine, interval
-        if self._refiner is not None:
-            self._refiner.interval = interval
-        self._follow_with_refiner(self._newest)
+        self._refinement.configure(refine, interval)
+        self._follow_with_refiner(self._cycle.newest)
 
     def _follow_with_refiner(self, active: ActiveCalibration):
-        """Start, keep or stop the refiner for ``active`` (the newest calibration): only one from
-        the spec or an earlier refinement is refined; a refiner whose basis is replaced by another
-        kind of calibration is stopped (what it found is discarded), one whose spec changed restarts."""
-        refiner = self._refiner
-        if not self._refine:
-            why = 'refine is false'
-        elif active.source not in REFINABLE_SOURCES:
-            why = (f'the calibration from {active.source} is not refined (only one from the spec or an '
-                   'earlier refinement)')
-        else:
-            why = None
-        if why is not None:
-            if refiner is not None:
-                before = refiner.status
-                refiner.stop(why)
-                self._refiner = None
-                self.get_logger().info(f'refinement stopped ({before.state}, {before.frames_kept} frame(s) taken; '
-                                       f'what it found is discarded): {why}')
-            elif self._refine and why != self._refine_off:
-                self.get_logger().info(f'refine: {why}')
-            self._refine_off = why
-            return
-        if refiner is not None:
-            if active.source == 'refined':
-                return  # its own result, or a change of rectification only
-            if refiner.spec == self._settings.spec and refiner.status.state not in ('failed', 'stopped'):
-                return  # re-solved from the same spec: the evidence still holds
-            refiner.stop('the spec changed')
-        # imported here: its worker process, pickling and Kannala-Brandt fitting are not what a
-        # node with refine off (the default) should import before its first CameraInfo
-        from ..core.ros_data.online_refinement import OnlineRefiner
-
-        initial, reference = self._refined if active.source == 'refined' and self._refined else (None, None)
-        self._refiner = OnlineRefiner(self._settings.spec, self._refine_interval, initial=initial,
-                                      reference_uncertainty_px=reference)
-        self._refine_logged = None
-        self.get_logger().info(
-            f'refine: sampling one frame every {self._refine_interval:g} s (worker pid {self._refiner.pid}, '
-            f'low priority); refining the calibration from {active.source} (generation {active.generation})')
+        self._refinement.follow(active, self._settings.spec, self._cycle.refined)
 
     def _offer_frame(self, data, width: int, height: int, step: int, encoding: str, is_bigendian: bool, copy: bool):
         """Frame callback: a comparison unless the refiner takes this frame."""
-        now = time.monotonic()
-        refiner = self._refiner
-        if not refiner.due(now):
-            return
-        try:
-            image = image_array(data, width, height, step, encoding, is_bigendian)
-        except FrameSkipped:
-            return  # already counted as skipped by the frame's own checks, or an encoding it cannot read
-        if refiner.offer(image, now, copy=copy):
+        if self._refinement.offer(data, width, height, step, encoding, is_bigendian, copy, time.monotonic()):
             self._stats['refine_frames_sampled'] += 1
 
     def _poll_refiner(self):
         """Housekeeping: log the refiner's state changes; adopt an accepted refinement."""
-        refiner = self._refiner
-        if refiner is None:
-            return
-        status = refiner.status
-        key = (status.state, status.frames_processed)
-        if status.state == 'failed':  # the worker is gone: said once, with what to do
-            if self._refine_logged != 'failed':
-                self._refine_logged = 'failed'
-                self.get_logger().warning(
-                    f'refine: failed after {status.frames_processed} frame(s): {status.reason}; no more refinement '
-                    '(the calibration in force stays); set refine to false and true to restart it')
-        elif key != self._refine_logged and status.frames_processed:
-            self._refine_logged = key
-            text = (f'refine: {status.state} after {status.frames_processed} frame(s): {status.lines} lines, '
-                    f'coverage {100 * status.coverage:.0f} %: {status.reason}')
-            if status.state == 'error':
-                if self._due('refine_error'):  # a frame the worker cannot use: at most one line every few s
-                    self.get_logger().warning(text)
-            else:
-                self.get_logger().info(text)
-        result = refiner.take_result()
+        result = self._refinement.poll()
         if result is not None:
             self._adopt_refinement(result)
 
     def _adopt_refinement(self, result):
-        basis = self._newest
+        basis = self._cycle.newest
         if basis.source not in REFINABLE_SOURCES:  # stopped refiners give no result; defensive
             self.get_logger().info(f'refined calibration discarded: the calibration is from {basis.source}')
             return
-        width, height = basis.calibration.width, basis.calibration.height
-        settings = self._settings
-        s = result.status
-        from ..core.ros_data.online_refinement import px_text as px, refined_calibration_and_fit
-
         try:
-            # in the configured distortion model (plumb_bob fitted to the refined lens, with its error)
-            calibration, fit_error_px = refined_calibration_and_fit(
-                result.camera, width, height, settings.balance, settings.fov_scale, settings.camera_name,
-                settings.distortion_model)
-            camera = calibration.camera()
-            active = ActiveCalibration(calibration, camera, 'refined', self._generation + 1, settings.rectify,
-                                       settings.interpolation, build_maps=False,
-                                       map_budget_bytes=self._map_budget_bytes)
+            active, fit_error_px = self._cycle.for_refinement(result.camera, self._settings)
         except (CalibrationFileError, MapBudgetExceeded, ValueError) as exc:
             self.get_logger().warning(f'refined calibration not adopted: {exc}')
             return
-
-        def text(c):
-            return f'K {np.round(c.K, 3).tolist()}\n    {c.distortion_model} D {np.round(c.D.ravel(), 6).tolist()}'
-        self.get_logger().info(
-            f'refinement accepted: {s.lines} lines from {s.frames_used} frame(s), coverage {100 * s.coverage:.0f} %, '
-            f'line residual {px(s.residual_px_before)} -> {px(s.residual_px)} px, uncertainty '
-            f'{px(s.zero_shot_uncertainty_px)} -> {px(s.uncertainty_px)} px, principal point moved '
-            f'{px(s.principal_point_shift_px)} px; adopting it as generation {active.generation}\n'
-            f'  before (generation {basis.generation}, {basis.source}): {text(basis.calibration)}\n'
-            f'  after  (refined): {text(calibration)}'
-            + (f'\n  {calibration.distortion_model} fitted to the refined lens: error up to {fit_error_px:.3g} px'
-               if calibration.distortion_model != 'equidistant' else ''))
-        if fit_error_px > FIT_WARNING_PX:
-            self.get_logger().warning(
-                f'the published {calibration.distortion_model} model departs from the refined lens by up to '
-                f'{fit_error_px:.3g} px (more than {FIT_WARNING_PX:g} px): consumers of CameraInfo see that error '
-                '(use distortion_model: equidistant for a lens this wide)')
-        try:
-            calibration.save(self._url_path)
-            saved = f'saved to {self._url_path}'
-        except (OSError, CalibrationFileError) as exc:
-            saved = f'NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'
+        for level, text in refinement_texts(result, basis, active, fit_error_px):
+            self._log(level, text)
+        saved_ok, saved = self._cycle.save(active.calibration)
+        if not saved_ok:
             self.get_logger().warning(f'refined calibration {saved}')
-        self._refined = (result.camera, s.uncertainty_px)
+        self._cycle.refined = (result.camera, result.status.uncertainty_px)
         self._adopt(active, f'refined calibration adopted (generation {active.generation}, source refined), '
                     f'{saved}')
-
-    def _refine_values_text(self) -> dict:
-        refiner = self._refiner
-        if refiner is None:
-            return {'refine_state': 'off', 'refine_reason': self._refine_off}
-        values = refiner.status.values()
-        return {'refine_state': values['state'], 'refine_reason': values['reason'],
-                'refine_frames': values['frames_processed'], 'refine_adopted': values['cameras_offered'],
-                'refine_lines': values['lines'],
-                'refine_coverage': values['coverage'], 'refine_residual_px': values['residual_px'],
-                'refine_uncertainty_px': values['uncertainty_px'],
-                'refine_zero_shot_uncertainty_px': values['zero_shot_uncertainty_px']}
 
     def _on_set_camera_info(self, request, response):
         """As camera drivers offer it to cameracalibrator: validated whole (plausibility, and the
@@ -1113,10 +813,7 @@ class ZeroShotCalibNode(Node):
         a calibration that does not go into force."""
         try:
             calibration = calibration_from_camera_info(request.camera_info, self._settings.camera_name)
-            active = ActiveCalibration(calibration, calibration.camera(), 'set_camera_info',
-                                       self._generation + 1, self._settings.rectify,
-                                       self._settings.interpolation, build_maps=False,
-                                       map_budget_bytes=self._map_budget_bytes)
+            active = self._cycle.for_camera_info(calibration, self._settings)
         except (CalibrationFileError, ValueError) as exc:
             response.success, response.status_message = False, f'rejected, calibration unchanged: {exc}'
             self.get_logger().warning(f'set_camera_info {response.status_message}')
@@ -1125,13 +822,13 @@ class ZeroShotCalibNode(Node):
             response.success, response.status_message = False, f'rejected, calibration unchanged: {exc!r}'
             self.get_logger().error(f'set_camera_info {response.status_message}')
             return response
-        self._save_when_in_force = None  # a newer request replaces an older one still building
+        self._cycle.save_when_in_force = None  # a newer request replaces an older one still building
         start = time.monotonic()
         job = self._adopt(active, 'calibration from set_camera_info adopted', every_core=True)
         job.finished.wait(SET_CAMERA_INFO_WAIT_SECONDS)
         if job.finished.is_set() and job.error is None and not job.superseded:
             self._swap_in(job)  # in force now (a no-op when it already is)
-            response.success, saved = self._save_camera_info(calibration)
+            response.success, saved = self._cycle.save_camera_info(calibration)
             response.status_message = f'calibration adopted{saved}'
         elif job.finished.is_set():
             why = f'building its rectification maps failed: {job.error!r}' if job.error is not None \
@@ -1139,12 +836,12 @@ class ZeroShotCalibNode(Node):
             response.success = False
             response.status_message = f'not adopted, calibration unchanged: {why}; nothing saved'
         else:
-            self._save_when_in_force = (calibration, active.generation)
+            self._cycle.save_when_in_force = (calibration, active.generation)
             response.success = True
             response.status_message = (
                 f'calibration accepted, not in force yet: its rectification maps of {active.size[0]}x'
                 f'{active.size[1]} are being built ({time.monotonic() - start:.1f} s so far); it goes '
-                f'into force and is saved to {self._url_path} when they are (the log says so)')
+                f'into force and is saved to {self._cycle.url_path} when they are (the log says so)')
         self.get_logger().info(f'set_camera_info: {response.status_message}')
         return response
 

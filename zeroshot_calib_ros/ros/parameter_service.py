@@ -1,5 +1,5 @@
 """rclpy's parameter services with SetParameters as one atomic change, and the node's parameter
-table (core/ros_data/node_parameters.py) as ROS ParameterDescriptors."""
+table (core/streaming/node_parameters.py) as ROS ParameterDescriptors."""
 from __future__ import annotations
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType,
@@ -8,7 +8,7 @@ from rclpy.exceptions import ParameterNotDeclaredException
 from rclpy.parameter import Parameter
 from rclpy.parameter_service import ParameterService
 
-from ..core.ros_data.node_parameters import NodeParameter, closest_parameter_text, same_value
+from ..core.streaming.node_parameters import NodeParameter, closest_parameter_text, same_value
 from ..core.zeroshot.spec import value_text
 
 _TYPES = {'bool': ParameterType.PARAMETER_BOOL, 'integer': ParameterType.PARAMETER_INTEGER,

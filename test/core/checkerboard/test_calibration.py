@@ -18,7 +18,7 @@ from zeroshot_calib_ros.core.checkerboard.calibration import (CalibrationError, 
                                                  calibrate_opencv_fisheye, calibrate_zhang,
                                                  opencv_fisheye_flag, perspective_camera)
 from zeroshot_calib_ros.core.checkerboard.calibration import paper_zero_shot_camera as zero_shot_camera
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.checkerboard.corners import (Board, CornersError, CornerSet, detect_corners,
                                              parse_board)
 from zeroshot_calib_ros.core.checkerboard.pose import rodrigues

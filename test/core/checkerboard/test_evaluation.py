@@ -19,7 +19,7 @@ from test_calibration import BOARD, CENTRED, TRUE, spec_of, synthetic_corners
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import KannalaBrandtCamera, PlumbBobCamera, ZeroShotCamera
 from zeroshot_calib_ros.core.checkerboard.calibration import as_solution, calibrate
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.checkerboard.corners import Board, detect_corners
 from zeroshot_calib_ros.core.checkerboard.evaluation import (evaluate, evaluation_to_dict, format_tables,
                                                 reprojection_error)

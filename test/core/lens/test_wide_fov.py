@@ -12,10 +12,10 @@ from scipy.optimize import brentq
 from paper_table2 import load_table2
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import CameraSpec, SpecError, ZeroShotCamera, solve_zero_shot
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.lens.fitting import fit_kannala_brandt
 from zeroshot_calib_ros.core.lens.projections import PROJECTIONS
-from zeroshot_calib_ros.core.ros_data.rectify import MAX_EDGE_ANGLE_DEG, Rectifier, new_camera_matrix
+from zeroshot_calib_ros.core.ros_formats.rectify import MAX_EDGE_ANGLE_DEG, Rectifier, new_camera_matrix
 from zeroshot_calib_ros.core.zeroshot.solver import PROJECTION_CHOICES
 from zeroshot_calib_ros.core.lens.wide_fov import WideFovCamera, fields_of_view_through_axis
 from zeroshot_calib_ros.core.zeroshot.wide_solver import WIDE_CHOICES, needs_wide_model

@@ -18,7 +18,7 @@ import scenes
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
 from zeroshot_calib_ros.core.lens.wide_fov import WideFovCamera
 from zeroshot_calib_ros.core.lines.detect import Curve, detect_curves, draw_curves, make_views
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.zeroshot.solver import solve_zero_shot
 from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
 

@@ -238,8 +238,8 @@ def test_a_forced_wide_law_follows_the_prior_lens_across_the_short_side():
 def test_the_node_reads_one_fov_as_the_cli_does():
     """The node solves its spec as `solve` does: one FOV gets the lens shape of real lenses of that
     FOV (never the pinhole), and the summary it logs at start-up says what was assumed."""
-    from zeroshot_calib_ros.core.ros_data.calibration_file import summary_text
-    from zeroshot_calib_ros.core.ros_data.node_parameters import PARAMETERS, Settings, solve_from_settings
+    from zeroshot_calib_ros.core.ros_formats.calibration_file import summary_text
+    from zeroshot_calib_ros.core.streaming.node_parameters import PARAMETERS, Settings, solve_from_settings
     values = {name: parameter.default for name, parameter in PARAMETERS.items()}
     values.update(width=848, height=800, hfov=0.0, vfov=0.0, dfov=163.0, circle_diameter=0.0, circle_fov=0.0,
                   preset='')

@@ -11,7 +11,7 @@ import pytest
 from paper_table2 import load_table2
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import CameraSpec, SpecError, solve_zero_shot
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.zeroshot.presets import (PRESETS_FILE, PresetError, get_preset, get_preset_entry,
                                              load_presets, parse_presets)
 
@@ -132,7 +132,7 @@ def test_spec_with_preset_overrides_field_by_field():
 def test_a_preset_at_another_aspect_ratio_is_refused_everywhere(tmp_path, capsys):
     """A preset's FOVs belong to its aspect ratio: solve, refine and the node's parameters refuse
     another one (naming the preset's resolution); the same aspect ratio at another size is fine."""
-    from zeroshot_calib_ros.core.ros_data.node_parameters import PARAMETERS, Settings
+    from zeroshot_calib_ros.core.streaming.node_parameters import PARAMETERS, Settings
     from zeroshot_calib_ros.core.zeroshot.presets import spec_with_preset
     with pytest.raises(SpecError, match='1920x1080'):
         spec_with_preset('gopro_hero9_wide', width=1440, height=1080)

@@ -220,8 +220,8 @@ def test_a_diagonal_not_wider_than_hfov_is_rejected_naming_dfov(fovs):
 
 
 def _node_calibration(solution):
-    from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
-    from zeroshot_calib_ros.core.ros_data.image_frames import ActiveCalibration
+    from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
+    from zeroshot_calib_ros.core.streaming.image_frames import ActiveCalibration
     calibration, fit = CameraCalibration.from_solution(solution)
     ActiveCalibration(calibration, solution.camera, 'spec', rectify=True)  # maps built from P
     for value in (*calibration.K.ravel(), *calibration.D, *calibration.P.ravel()):

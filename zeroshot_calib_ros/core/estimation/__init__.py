@@ -4,7 +4,7 @@ The evidence sources of layer 2 (``core.lines``: straight lines in ordinary imag
 ``core.checkerboard``: boards) each give residual blocks; this package weighs them against the
 spec sheet and stated priors and decides whether the result may replace the zero-shot camera.
 May import ``core.lens``, ``core.zeroshot``, ``core.lines`` and ``core.checkerboard``; never
-``core.ros_data``, ``core`` itself, the CLI or the node.
+``core.ros_formats``, ``core.streaming``, ``core`` itself, the CLI or the node.
 
 - ``parameters.py``: parameter layouts (vector <-> camera): ``KannalaBrandtLayout`` (f, cx, cy and
   k1..kn as deviations from a base shape; the refined camera, ROS ``equidistant``) and

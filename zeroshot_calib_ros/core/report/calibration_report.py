@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from ..estimation.uncertainty import Uncertainty, uncertainty_map
-from ..ros_data.rectify import Rectifier, new_camera_matrix
+from ..ros_formats.rectify import Rectifier, new_camera_matrix
 from .canvas import (BLUE, GREEN, INK, MUTED, ORANGE, PAPER, RED, Rect, as_bgr, axes, colour_bar, fit_size,
                      heat_map, legend, legend_column, nice_ceiling, panel, paste_fitted, polyline, put_label,
                      put_text, put_wrapped, text_width, wrapped_height)

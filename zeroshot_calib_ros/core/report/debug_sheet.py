@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from ..lines.detect import draw_curves
-from ..ros_data.rectify import Rectifier, new_camera_matrix
+from ..ros_formats.rectify import Rectifier, new_camera_matrix
 from .calibration_report import verdict_text
 from .canvas import (CURVE_REJECTED, CURVE_STATIC, CURVE_USED, INK, MUTED, PAPER, as_bgr, legend, put_text,
                      put_wrapped, text_width, wrapped_height)

@@ -15,9 +15,9 @@ import numpy as np
 from ..zeroshot.presets import spec_with_preset
 from ..zeroshot.solver import PROJECTION_CHOICES, solve_zero_shot
 from ..zeroshot.spec import MAX_IMAGE_SIDE, CameraSpec, SpecError, value_text
-from .calibration_file import DISTORTION_MODELS, CameraCalibration, solution_summary
+from ..ros_formats.calibration_file import DISTORTION_MODELS, CameraCalibration, solution_summary
 from .image_frames import ActiveCalibration
-from .rectify import INTERPOLATIONS
+from ..ros_formats.rectify import INTERPOLATIONS
 
 SPEC_PARAMETERS = ('preset', 'width', 'height', 'hfov', 'vfov', 'dfov', 'circle_diameter', 'circle_fov',
                    'projection')

@@ -1,10 +1,10 @@
-"""The node's parameter rules without DDS (core/ros_data/node_parameters.py): what counts as a
+"""The node's parameter rules without DDS (core/streaming/node_parameters.py): what counts as a
 change, how rejected values are shown, unknown names, and user text without issue numbers."""
 import ast
 import re
 from pathlib import Path
 
-from zeroshot_calib_ros.core.ros_data.node_parameters import (PARAMETERS, changed_parameters, params_file_errors,
+from zeroshot_calib_ros.core.streaming.node_parameters import (PARAMETERS, changed_parameters, params_file_errors,
                                                                unknown_parameter_warnings, usage_text, value_text)
 from zeroshot_calib_ros.core.zeroshot.spec import SpecError
 

@@ -12,7 +12,7 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from zeroshot_calib_ros.core.ros_data.calibration_file import (CalibrationFileError, CameraCalibration,
+from zeroshot_calib_ros.core.ros_formats.calibration_file import (CalibrationFileError, CameraCalibration,
                                                       RegionOfInterest)
 
 from test_calibration_file import INI_FROM_CPP, YAML_FROM_CPP

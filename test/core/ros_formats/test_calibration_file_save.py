@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from zeroshot_calib_ros.core import atomic_file
-from zeroshot_calib_ros.core.ros_data.calibration_file import (CalibrationFileError, CalibrationSaveError,
+from zeroshot_calib_ros.core.ros_formats.calibration_file import (CalibrationFileError, CalibrationSaveError,
                                                       CameraCalibration, RegionOfInterest)
 
 from test_calibration_file import sample

@@ -6,7 +6,7 @@ both once the frame is done. glibc serves a block of at least ``M_MMAP_THRESHOLD
 mmap and returns it to the kernel when freed; below that threshold a freed block stays in the
 heap unless the free space at the top of the heap exceeds ``M_TRIM_THRESHOLD``, which is then
 returned too. Either way every page of the next frame is faulted in again: at 1080p bgr8 two
-6.2 MB blocks per frame are about 3,000 page faults a frame (test/core/ros_data/test_heap.py). glibc adjusts
+6.2 MB blocks per frame are about 3,000 page faults a frame (test/core/streaming/test_heap.py). glibc adjusts
 both thresholds itself (each mmapped block freed raises the mmap threshold to its size and the
 trim threshold to twice that), so whether a process faults depends on which blocks it happened
 to free before. In earlier runs the same node's latency at 1080p bgr8 30 fps swung between

@@ -3,7 +3,7 @@ memory.max / v1 memory.limit_in_bytes (its own cgroup and ancestors), ulimit -v 
 tightest one wins (fake /proc and /sys trees, fake rlimits)."""
 import resource
 
-from zeroshot_calib_ros.core.ros_data.image_frames import default_map_budget, memory_limits
+from zeroshot_calib_ros.core.streaming.image_frames import default_map_budget, memory_limits
 
 GiB = 2**30
 

@@ -51,8 +51,8 @@ from ..estimation.terms import FOV_TOLERANCE_DEG
 from ..lens.fitting import DISTORTION_FITS
 from ..lens.models import KannalaBrandtCamera
 from ..zeroshot.spec import CameraSpec
-from .calibration_file import CameraCalibration
-from .rectify import new_camera_matrix
+from ..ros_formats.calibration_file import CameraCalibration
+from ..ros_formats.rectify import new_camera_matrix
 
 DEFAULT_INTERVAL = 2.0
 """Seconds between kept frames (the node's ``refine_interval``)."""
@@ -192,7 +192,7 @@ def worker_command() -> list:
     # `python -c` puts the working directory first on sys.path: removed, so that the worker runs
     # the package the node runs (PYTHONPATH), not a source tree the node was started in
     return [sys.executable, '-c', 'import sys; del sys.path[0]; '
-            'from zeroshot_calib_ros.core.ros_data.online_refinement import worker_main; worker_main()']
+            'from zeroshot_calib_ros.core.streaming.online_refinement import worker_main; worker_main()']
 
 
 class OnlineRefiner:

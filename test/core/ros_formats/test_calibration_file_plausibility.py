@@ -9,7 +9,7 @@ import pytest
 
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
-from zeroshot_calib_ros.core.ros_data.calibration_file import (DISTORTION_MODELS, CalibrationFileError,
+from zeroshot_calib_ros.core.ros_formats.calibration_file import (DISTORTION_MODELS, CalibrationFileError,
                                                                CameraCalibration)
 from zeroshot_calib_ros.core.zeroshot.presets import get_preset, load_presets
 

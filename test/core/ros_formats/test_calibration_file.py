@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from zeroshot_calib_ros.core import CameraSpec, KannalaBrandtCamera, solve_zero_shot
-from zeroshot_calib_ros.core.ros_data.calibration_file import (DEFAULT_CAMERA_INFO_URL, CalibrationFileError,
+from zeroshot_calib_ros.core.ros_formats.calibration_file import (DEFAULT_CAMERA_INFO_URL, CalibrationFileError,
                                                       CalibrationSaveError, CameraCalibration,
                                                       RegionOfInterest, resolve_camera_info_url)
 from zeroshot_calib_ros.core.zeroshot.spec import MAX_IMAGE_SIDE

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
-from zeroshot_calib_ros.core.ros_data.camera_info_model import POINT_CRITERIA, CameraInfoModel
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.ros_formats.camera_info_model import POINT_CRITERIA, CameraInfoModel
 from zeroshot_calib_ros.core.lens.models import camera_from_calibration
-from zeroshot_calib_ros.core.ros_data.rectify import Rectifier, rectification_maps
+from zeroshot_calib_ros.core.ros_formats.rectify import Rectifier, rectification_maps
 
 W, H = 1280, 720
 K_PIN = np.array([[800.0, 0.0, 652.3], [0.0, 795.0, 361.7], [0.0, 0.0, 1.0]])

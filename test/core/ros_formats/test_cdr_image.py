@@ -1,4 +1,4 @@
-"""Serialized sensor_msgs/Image and CameraInfo without ROS (core/ros_data/cdr_image.py): read and
+"""Serialized sensor_msgs/Image and CameraInfo without ROS (core/ros_formats/cdr_image.py): read and
 built against the bytes ROS 2's own serializer (Fast CDR, through rclpy.serialization) wrote for
 the same messages, and against the CDR rules written out here; every malformed buffer refused
 with CdrError (the node counts the frame as malformed) or NotPlainCdr (the node deserializes it)."""
@@ -7,7 +7,7 @@ import struct
 import numpy as np
 import pytest
 
-from zeroshot_calib_ros.core.ros_data.cdr_image import (CdrError, NotPlainCdr, SerializedImage, image_prefix,
+from zeroshot_calib_ros.core.ros_formats.cdr_image import (CdrError, NotPlainCdr, SerializedImage, image_prefix,
                                                         parse_image, patch_stamp, pixel_bytes,
                                                         serialize_camera_info, serialize_image)
 

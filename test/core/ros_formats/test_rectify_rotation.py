@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from zeroshot_calib_ros.cli import main
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
-from zeroshot_calib_ros.core.ros_data.image_frames import ActiveCalibration
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.streaming.image_frames import ActiveCalibration
 
 FIXED_TOLERANCE_PX = 1 / 64 + 1e-3
 """Fixed-point maps are 1/32 px cells: within half a cell per axis of OpenCV's float maps."""
@@ -103,7 +103,7 @@ def test_cli_rectify_with_a_rotated_calibration_is_opencvs(tmp_path, model):
 def test_cli_rectify_with_a_rotated_calibration_and_a_chosen_p_keeps_r(tmp_path, model):
     """--balance / --fov-scale choose another P for a calibration file; its R still applies
     (image_proc with that P would rotate the same way)."""
-    from zeroshot_calib_ros.core.ros_data.rectify import new_camera_matrix
+    from zeroshot_calib_ros.core.ros_formats.rectify import new_camera_matrix
     cal = calibration(model)
     image, ours = rectified_by_cli(tmp_path, cal, '--balance', '0.3', '--fov-scale', '1.0')
     mx, my = opencv_maps(cal, P=new_camera_matrix(cal.camera(), 0.3, 1.0))

@@ -1,4 +1,4 @@
-"""The node's refinement without DDS (core/ros_data/online_refinement.py): frames offered as a
+"""The node's refinement without DDS (core/streaming/online_refinement.py): frames offered as a
 stream, one kept every interval, lines and fit in a low-priority worker process, the gate of
 refine_camera; checked against a known camera rendered with test/scenes.py."""
 import os
@@ -16,7 +16,7 @@ from zeroshot_calib_ros.core.estimation.refine import zero_shot_camera
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
 from zeroshot_calib_ros.core.lines.detect import detect_curves
 from zeroshot_calib_ros.core.lens.wide_fov import fields_of_view_through_axis
-from zeroshot_calib_ros.core.ros_data.online_refinement import WORKER_NICE, OnlineRefiner, refined_calibration
+from zeroshot_calib_ros.core.streaming.online_refinement import WORKER_NICE, OnlineRefiner, refined_calibration
 
 TRUE = KannalaBrandtCamera(210.0, 210.0, 327.0, 176.0, 640, 360, np.array([0.02, -0.01, 0.003, -0.0005]))
 SPEC = CameraSpec(640, 360, hfov=172, vfov=97, dfov=198)  # TRUE's FOVs rounded to 1 degree
@@ -182,8 +182,8 @@ def test_after_a_refined_camera_only_a_clearly_better_fit_is_offered_and_then_it
     uncertainty; a refused fit keeps the camera in use (state refined); FINISH frames without a
     better one finish it. Each fit starts from the camera in use."""
     from zeroshot_calib_ros.core.estimation import refine as refine_module
-    from zeroshot_calib_ros.core.ros_data import online_refinement
-    from zeroshot_calib_ros.core.ros_data.online_refinement import IMPROVEMENT, _Worker
+    from zeroshot_calib_ros.core.streaming import online_refinement
+    from zeroshot_calib_ros.core.streaming.online_refinement import IMPROVEMENT, _Worker
 
     assert IMPROVEMENT == 0.7
     zs = zero_shot_camera(SPEC, 640, 360)
@@ -244,7 +244,7 @@ def test_a_worker_killed_after_its_first_camera_is_reported_failed(refiner_facto
 
 def _scripted_worker(monkeypatch, script, **start):
     from zeroshot_calib_ros.core.estimation import refine as refine_module
-    from zeroshot_calib_ros.core.ros_data.online_refinement import _Worker
+    from zeroshot_calib_ros.core.streaming.online_refinement import _Worker
     zs = zero_shot_camera(SPEC, 640, 360)
     answers, sizes = iter(script), []
 
@@ -264,7 +264,7 @@ def _scripted_worker(monkeypatch, script, **start):
 def test_a_restarted_refiner_offers_only_a_fit_better_than_the_calibration_in_force(monkeypatch):
     """Refine turned off and on (or restarted after a failure) with a refined calibration in
     force: the 0.7x rule holds against that calibration's uncertainty, not from scratch."""
-    from zeroshot_calib_ros.core.ros_data.online_refinement import _camera_tuple
+    from zeroshot_calib_ros.core.streaming.online_refinement import _camera_tuple
     in_force = zero_shot_camera(SPEC, 640, 360)
     worker, _ = _scripted_worker(monkeypatch, [(2.06, True), (1.5, True), (1.3, True)],
                                  initial=_camera_tuple(in_force), reference_uncertainty_px=2.0)
@@ -297,7 +297,7 @@ def test_a_restarted_refiner_reads_collecting_until_a_fit_beats_the_calibration_
     """Refine turned off and on with a refined calibration in force: the refiner's state is
     collecting (not refined) while no fit has beaten that calibration by the 0.7x rule, even
     when the gate accepts the fits; refined from the first fit that does."""
-    from zeroshot_calib_ros.core.ros_data.online_refinement import _camera_tuple
+    from zeroshot_calib_ros.core.streaming.online_refinement import _camera_tuple
     in_force = zero_shot_camera(SPEC, 640, 360)
     worker, _ = _scripted_worker(monkeypatch, [(2.06, True), (None, False), (1.5, True), (1.3, True), (1.3, True)],
                                  initial=_camera_tuple(in_force), reference_uncertainty_px=2.0)
@@ -329,7 +329,7 @@ def test_after_a_size_change_a_fit_must_beat_the_camera_in_use_in_the_new_size_p
 def test_refined_calibration_in_the_configured_plumb_bob_model():
     """With distortion_model plumb_bob (a narrow lens, config/c922.yaml) the refined camera is
     published in plumb_bob, fitted with the zero-shot fitting code, with its error."""
-    from zeroshot_calib_ros.core.ros_data.online_refinement import refined_calibration_and_fit
+    from zeroshot_calib_ros.core.streaming.online_refinement import refined_calibration_and_fit
     narrow = zero_shot_camera(CameraSpec(1280, 720, hfov=70.42, vfov=43.3), 1280, 720)
     refined = KannalaBrandtCamera(narrow.fx, narrow.fy, 645.0, 355.0, 1280, 720, narrow.D)
     record, fit_error_px = refined_calibration_and_fit(refined, 1280, 720, distortion_model='plumb_bob',
@@ -350,7 +350,7 @@ def scripted_worker(monkeypatch, script, start=None):
     ``script`` ((uncertainty px, accepted) per frame, camera fx = zero-shot's + frame number)."""
     from zeroshot_calib_ros.core.estimation import refine as refine_module
     from zeroshot_calib_ros.core.lines import detect as detect_module
-    from zeroshot_calib_ros.core.ros_data.online_refinement import _Worker
+    from zeroshot_calib_ros.core.streaming.online_refinement import _Worker
     zs = zero_shot_camera(SPEC, 640, 360)
     answers, detected_with = iter(script), []
 
@@ -385,7 +385,7 @@ def test_lines_are_detected_with_the_camera_in_force(monkeypatch):
 def test_lines_are_detected_with_the_initial_camera_scaled_to_the_frames(monkeypatch):
     """A refiner started from an earlier refinement (``initial``, here at twice the frames' size)
     detects with that camera, scaled to the frames, not with zero-shot's."""
-    from zeroshot_calib_ros.core.ros_data.online_refinement import _camera_tuple
+    from zeroshot_calib_ros.core.streaming.online_refinement import _camera_tuple
     initial = KannalaBrandtCamera(420.0, 420.0, 654.0, 352.0, 1280, 720, [0.02, -0.01, 0.003, -0.0005])
     worker, detected_with, zs = scripted_worker(monkeypatch, [(None, False)] * 2,
                                                 {'initial': _camera_tuple(initial)})
@@ -401,7 +401,7 @@ def test_the_pool_is_the_newest_8_frames_and_it_finishes_16_frames_after_the_las
     """The defaults a refiner gives its worker: curves of the newest MAX_FRAMES = 8 frames pooled
     (state insufficient once 8 frames were refused, the pool then sliding), and FINISH_AFTER = 16
     frames without a better fit after the last offered camera finish it (not one frame sooner)."""
-    from zeroshot_calib_ros.core.ros_data import online_refinement
+    from zeroshot_calib_ros.core.streaming import online_refinement
     assert (online_refinement.MAX_FRAMES, online_refinement.FINISH_AFTER) == (8, 16)
     sink = [sys.executable, '-c', 'import sys; sys.stdin.buffer.read()']
     refiner = OnlineRefiner(SPEC, command=sink)
@@ -422,7 +422,7 @@ def test_the_pool_is_the_newest_8_frames_and_it_finishes_16_frames_after_the_las
 
 HELD_WORKER = r'''
 import dataclasses, os, sys, time
-from zeroshot_calib_ros.core.ros_data.online_refinement import RefineStatus, _read_exactly, _receive, _send
+from zeroshot_calib_ros.core.streaming.online_refinement import RefineStatus, _read_exactly, _receive, _send
 gate, stdin, out = sys.argv[1], sys.stdin.buffer, sys.stdout.buffer
 _receive(stdin)
 n = 0
@@ -471,7 +471,7 @@ def test_frames_offered_while_the_worker_is_busy_are_dropped_uncopied_and_uncoun
 def test_the_refined_record_chooses_p_by_balance_and_fov_scale():
     """The ROS record of a refined camera: P is the rectified camera chosen by balance and
     fov_scale (as a zero-shot record's), at the record's size."""
-    from zeroshot_calib_ros.core.ros_data.rectify import new_camera_matrix
+    from zeroshot_calib_ros.core.ros_formats.rectify import new_camera_matrix
     for balance, fov_scale in ((0.0, 1.0), (0.5, 1.0), (0.0, 0.8), (1.0, 1.3)):
         record = refined_calibration(TRUE, 1280, 720, balance, fov_scale)
         np.testing.assert_allclose(record.P[:, :3], new_camera_matrix(TRUE.scaled(1280, 720), balance, fov_scale))
@@ -482,7 +482,7 @@ def test_the_refined_record_chooses_p_by_balance_and_fov_scale():
 def test_refined_plumb_bob_keeps_a_camera_whose_pixels_are_not_square():
     """A refined lens with fx != fy (non-square pixels, or a camera whose rows are binned): the
     plumb_bob record keeps both focal lengths and reproduces the lens within its stated error."""
-    from zeroshot_calib_ros.core.ros_data.online_refinement import refined_calibration_and_fit
+    from zeroshot_calib_ros.core.streaming.online_refinement import refined_calibration_and_fit
     narrow = zero_shot_camera(CameraSpec(1280, 720, hfov=70.42, vfov=43.3), 1280, 720)
     refined = KannalaBrandtCamera(narrow.fx, narrow.fx * 1.03, 641.0, 357.0, 1280, 720, narrow.D)
     record, fit_error_px = refined_calibration_and_fit(refined, 1280, 720, distortion_model='plumb_bob')
@@ -500,7 +500,7 @@ def test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_ev
     from test_static_curves import on_vehicle_rim
     from zeroshot_calib_ros.core.estimation import refine as refine_module
     from zeroshot_calib_ros.core.lines import detect as detect_module
-    from zeroshot_calib_ros.core.ros_data.online_refinement import _Worker
+    from zeroshot_calib_ros.core.streaming.online_refinement import _Worker
     spec = CameraSpec(640, 480, circle_diameter=2 * CIRCULAR.circle_radius, circle_fov=190.0)
     zs = zero_shot_camera(spec, 640, 480)
     detected, fits = [], []

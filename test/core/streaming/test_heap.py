@@ -1,4 +1,4 @@
-"""Frame-sized blocks stay in the heap (zeroshot_calib_ros/core/ros_data/heap.py): a stream that
+"""Frame-sized blocks stay in the heap (zeroshot_calib_ros/core/streaming/heap.py): a stream that
 allocates and frees frames costs no page faults once the allocator is set, whatever the process
 freed before. Each case runs in a fresh interpreter: glibc's thresholds are process-wide and
 move with what a process has freed."""
@@ -22,7 +22,7 @@ STREAM = '''
 import json, resource, sys
 said = 'not called'
 if sys.argv[1] == 'set':  # imported only then: importing frees blocks, which moves glibc's thresholds
-    from zeroshot_calib_ros.core.ros_data.heap import keep_frames_in_heap
+    from zeroshot_calib_ros.core.streaming.heap import keep_frames_in_heap
     said = keep_frames_in_heap()
 frame = bytearray(b'\\x01') * int(sys.argv[2])
 faults = []

@@ -17,10 +17,10 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
-from .calibration_file import CameraCalibration
+from ..ros_formats.calibration_file import CameraCalibration
 from .heap import return_free_memory
 from ..lens.models import CameraModel
-from .rectify import Rectifier, new_camera_matrix
+from ..ros_formats.rectify import Rectifier, new_camera_matrix
 
 ENCODINGS: Dict[str, Tuple[np.dtype, int]] = {
     'mono8': (np.dtype(np.uint8), 1), 'mono16': (np.dtype(np.uint16), 1),

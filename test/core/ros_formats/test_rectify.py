@@ -5,10 +5,10 @@ import pytest
 
 from synthetic import find_corners, line_residuals, render_checkerboard
 from zeroshot_calib_ros.core import CameraSpec, KannalaBrandtCamera, solve_zero_shot
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
 from zeroshot_calib_ros.core.lens.fitting import fit_kannala_brandt
-from zeroshot_calib_ros.core.ros_data.image_frames import ENCODINGS, ActiveCalibration, image_array
-from zeroshot_calib_ros.core.ros_data.rectify import (Rectifier, map_format_for, new_camera_matrix,
+from zeroshot_calib_ros.core.streaming.image_frames import ENCODINGS, ActiveCalibration, image_array
+from zeroshot_calib_ros.core.ros_formats.rectify import (Rectifier, map_format_for, new_camera_matrix,
                                                      pads_to_four_channels, principal_point_camera_matrix,
                                                      rectification_maps)
 

@@ -5,9 +5,9 @@ import threading
 import numpy as np
 
 from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
-from zeroshot_calib_ros.core.ros_data.calibration_file import CameraCalibration
-from zeroshot_calib_ros.core.ros_data.image_frames import ActiveCalibration
-from zeroshot_calib_ros.core.ros_data.map_builder import MapBuilder
+from zeroshot_calib_ros.core.ros_formats.calibration_file import CameraCalibration
+from zeroshot_calib_ros.core.streaming.image_frames import ActiveCalibration
+from zeroshot_calib_ros.core.streaming.map_builder import MapBuilder
 
 
 def small_active(build_maps=True):
@@ -81,7 +81,7 @@ def test_a_size_requested_twice_before_its_build_is_built_once():
 
 
 def test_a_job_ends_finished_whether_built_failed_or_superseded():
-    from zeroshot_calib_ros.core.ros_data.map_builder import MapJob
+    from zeroshot_calib_ros.core.streaming.map_builder import MapJob
     finished = Finished()
     builder = MapBuilder(finished)
     gate = threading.Event()
@@ -110,7 +110,7 @@ def test_each_build_gives_its_freed_memory_back(monkeypatch):
     freed blocks back to the kernel (heap.return_free_memory): the heap thresholds that keep
     stream frames resident would otherwise keep the build's temporaries (tens of MiB at 4000x3000)
     for the life of the process. Called once the job's maps are in place, before it is reported."""
-    from zeroshot_calib_ros.core.ros_data import map_builder
+    from zeroshot_calib_ros.core.streaming import map_builder
     calls = []
     monkeypatch.setattr(map_builder, 'return_free_memory', lambda: calls.append(len(finished.jobs)) or True)
     active = small_active(build_maps=False)

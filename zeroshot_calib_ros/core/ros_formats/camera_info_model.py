@@ -33,7 +33,7 @@ Where C++ image_geometry surprises, and what this class does:
 * rectifyPoint calls cv::undistortPoints with OpenCV's default stopping rule: 5 fixed-point
   iterations, whatever the residual. For plumb_bob / rational_polynomial that leaves errors of
   0.4 px at the corners of a moderate lens (k1 = -0.3 at 1280 x 720) and 6 px for the
-  rational_polynomial lens of test/core/ros_data/test_camera_info_model.py, more for stronger ones.
+  rational_polynomial lens of test/core/ros_formats/test_camera_info_model.py, more for stronger ones.
   Not followed by default: ``point_criteria`` = POINT_CRITERIA, up to
   200 iterations or a 1e-10 px reprojection residual (Newton steps of 1e-10 rad for
   ``equidistant``, whose OpenCV default, 10 Newton steps / 1e-8, is already accurate).
