@@ -83,18 +83,27 @@ $(BSTAMP): $(VSTAMP) $(SOURCES)
 	|| { cat $(TOP)/log/latest_build/$(PKG)/stdout_stderr.log 2>/dev/null; exit 1; }
 	touch $@
 
-# Everything with ROS and the newest libraries and, at the same time, the ROS-free tests on
-# Jazzy's libraries: the ROS tests spend much of their time waiting for other processes, so the
-# two runs share the cores (wall time ~ the longer run). The second run's output is kept in
-# log/test-jazzy-libs.log and printed after the first; the status fails if either run failed.
+# Three pytest processes at the same time, sharing the cores: the ROS tests (conftest.NEEDS_ROS:
+# nodes in real processes, mostly waiting for them) with the newest libraries; the ROS-free tests
+# with the same libraries and the install tree; the ROS-free tests on Jazzy's libraries (Ubuntu
+# 24.04's numpy / SciPy / OpenCV 4). The two ROS-free runs are CPU-bound and run niced, so that the
+# ROS tests' processes (whose waits have timeouts) get a core whenever they need one; wall time ~
+# the CPU time of all three over the cores. The ROS-free runs' output is kept in
+# log/test-ros-free.log and log/test-jazzy-libs.log and printed after the ROS run's; the status
+# fails if any run failed.
+TEST_NICE ?= 5
 test: $(BSTAMP) $(LSTAMP)
 	@mkdir -p $(TOP)/log
-	@cd $(TOP) && { ZEROSHOT_ROS_FREE_ONLY=1 $(LIBS_VENV)/bin/python -m pytest -q -p no:cacheprovider test \
-		$(PYTEST_ARGS) > log/test-jazzy-libs.log 2>&1; echo $$? > log/test-jazzy-libs.rc; } & \
-	cd $(TOP) && $(ROS_ENV) $(VPY) -m pytest -q --durations=15 test $(PYTEST_ARGS); ros=$$?; wait; \
+	@cd $(TOP) && { ZEROSHOT_ROS_FREE_ONLY=1 nice -n $(TEST_NICE) $(LIBS_VENV)/bin/python -m pytest -q \
+		-p no:cacheprovider test $(PYTEST_ARGS) > log/test-jazzy-libs.log 2>&1; echo $$? > log/test-jazzy-libs.rc; } & \
+	cd $(TOP) && { ZEROSHOT_ROS_FREE_ONLY=1 $(ROS_ENV) nice -n $(TEST_NICE) $(VPY) -m pytest -q -p no:cacheprovider \
+		--durations=10 test $(PYTEST_ARGS) > log/test-ros-free.log 2>&1; echo $$? > log/test-ros-free.rc; } & \
+	cd $(TOP) && ZEROSHOT_ROS_ONLY=1 $(ROS_ENV) $(VPY) -m pytest -q --durations=10 test $(PYTEST_ARGS); ros=$$?; wait; \
+	echo '--- ROS-free tests, same libraries (log/test-ros-free.log) ---'; \
+	cat log/test-ros-free.log; free=$$(cat log/test-ros-free.rc); \
 	echo '--- ROS-free tests on Ubuntu 24.04 libraries (log/test-jazzy-libs.log) ---'; \
 	cat log/test-jazzy-libs.log; libs=$$(cat log/test-jazzy-libs.rc); \
-	test $$ros -eq 0 && test $$libs -eq 0
+	test $$ros -eq 0 && test $$free -eq 0 && test $$libs -eq 0
 
 test-ros: $(BSTAMP)
 	cd $(TOP) && $(ROS_ENV) $(VPY) -m pytest -q test $(PYTEST_ARGS)

@@ -7,6 +7,7 @@ numpy / SciPy / OpenCV 4 versions of Ubuntu 24.04, the platform of ROS 2 Jazzy
 that second run only.
 """
 import os
+from pathlib import Path
 
 NEEDS_ROS = ['test_node.py', 'test_node_contracts.py', 'test_node_files.py', 'test_bringup.py',
              'test_reliability.py', 'test_packaging.py', 'test_node_observable.py',
@@ -14,7 +15,17 @@ NEEDS_ROS = ['test_node.py', 'test_node_contracts.py', 'test_node_files.py', 'te
              'test_node_calibration_cycle.py', 'test_node_lazy.py']
 
 ROS_FREE_ONLY = os.environ.get('ZEROSHOT_ROS_FREE_ONLY') == '1'
-collect_ignore = NEEDS_ROS if ROS_FREE_ONLY else []
+# ZEROSHOT_ROS_ONLY=1: the modules of NEEDS_ROS alone (`make test` runs them in one process and
+# the ROS-free modules of the same environment in another, at the same time)
+ROS_ONLY = os.environ.get('ZEROSHOT_ROS_ONLY') == '1'
+if ROS_FREE_ONLY and ROS_ONLY:
+    raise RuntimeError('ZEROSHOT_ROS_FREE_ONLY=1 and ZEROSHOT_ROS_ONLY=1 select nothing together')
+if ROS_FREE_ONLY:
+    collect_ignore = list(NEEDS_ROS)
+elif ROS_ONLY:
+    collect_ignore = sorted(p.name for p in Path(__file__).parent.glob('test_*.py') if p.name not in NEEDS_ROS)
+else:
+    collect_ignore = []
 
 
 def pytest_report_header(config):
@@ -24,4 +35,6 @@ def pytest_report_header(config):
     header = f'numpy {numpy.__version__}, scipy {scipy.__version__}, OpenCV {cv2.__version__}'
     if ROS_FREE_ONLY:
         header += f"; ROS-free run: {', '.join(NEEDS_ROS)} not collected"
+    elif ROS_ONLY:
+        header += f"; ROS run: {', '.join(NEEDS_ROS)} only"
     return header
