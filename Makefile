@@ -86,17 +86,19 @@ $(BSTAMP): $(VSTAMP) $(SOURCES)
 # Three pytest processes at the same time, sharing the cores: the ROS tests (conftest.NEEDS_ROS:
 # nodes in real processes, mostly waiting for them) with the newest libraries; the ROS-free tests
 # with the same libraries and the install tree; the ROS-free tests on Jazzy's libraries (Ubuntu
-# 24.04's numpy / SciPy / OpenCV 4). The two ROS-free runs are CPU-bound and run niced, so that the
-# ROS tests' processes (whose waits have timeouts) get a core whenever they need one; wall time ~
-# the CPU time of all three over the cores. The ROS-free runs' output is kept in
+# 24.04's numpy / SciPy / OpenCV 4). The two ROS-free runs are CPU-bound and run at SCHED_IDLE
+# (TEST_BACKGROUND), so that the ROS tests' processes (whose waits have timeouts) get a core
+# whenever they need one; the nodes' refinement workers, SCHED_IDLE themselves, share the cores
+# with those two runs as equals (a nice value would starve them). Wall time ~ the CPU time of all
+# three over the cores. The ROS-free runs' output is kept in
 # log/test-ros-free.log and log/test-jazzy-libs.log and printed after the ROS run's; the status
 # fails if any run failed.
-TEST_NICE ?= 5
+TEST_BACKGROUND ?= chrt --idle 0
 test: $(BSTAMP) $(LSTAMP)
 	@mkdir -p $(TOP)/log
-	@cd $(TOP) && { ZEROSHOT_ROS_FREE_ONLY=1 nice -n $(TEST_NICE) $(LIBS_VENV)/bin/python -m pytest -q \
+	@cd $(TOP) && { ZEROSHOT_ROS_FREE_ONLY=1 $(TEST_BACKGROUND) $(LIBS_VENV)/bin/python -m pytest -q \
 		-p no:cacheprovider test $(PYTEST_ARGS) > log/test-jazzy-libs.log 2>&1; echo $$? > log/test-jazzy-libs.rc; } & \
-	cd $(TOP) && { ZEROSHOT_ROS_FREE_ONLY=1 $(ROS_ENV) nice -n $(TEST_NICE) $(VPY) -m pytest -q -p no:cacheprovider \
+	cd $(TOP) && { ZEROSHOT_ROS_FREE_ONLY=1 $(ROS_ENV) $(TEST_BACKGROUND) $(VPY) -m pytest -q -p no:cacheprovider \
 		--durations=10 test $(PYTEST_ARGS) > log/test-ros-free.log 2>&1; echo $$? > log/test-ros-free.rc; } & \
 	cd $(TOP) && ZEROSHOT_ROS_ONLY=1 $(ROS_ENV) $(VPY) -m pytest -q --durations=10 test $(PYTEST_ARGS); ros=$$?; wait; \
 	echo '--- ROS-free tests, same libraries (log/test-ros-free.log) ---'; \
