@@ -83,18 +83,40 @@ $(BSTAMP): $(VSTAMP) $(SOURCES)
 	|| { cat $(TOP)/log/latest_build/$(PKG)/stdout_stderr.log 2>/dev/null; exit 1; }
 	touch $@
 
-# Everything with ROS and the newest libraries and, at the same time, the ROS-free tests on
-# Jazzy's libraries: the ROS tests spend much of their time waiting for other processes, so the
-# two runs share the cores (wall time ~ the longer run). The second run's output is kept in
-# log/test-jazzy-libs.log and printed after the first; the status fails if either run failed.
+# Five pytest processes at the same time, sharing the cores: the ROS tests (conftest.NEEDS_ROS:
+# nodes in real processes, mostly waiting for them) with the newest libraries; the ROS-free tests
+# with the same libraries and the install tree, and the ROS-free tests on Jazzy's libraries (Ubuntu
+# 24.04's numpy / SciPy / OpenCV 4), each as two halves of their modules (ZEROSHOT_SHARD: a run of
+# one process uses one core, and the longest such chain would decide the wall time). The ROS-free
+# runs are CPU-bound and run at SCHED_IDLE (TEST_BACKGROUND), so that the ROS tests' processes
+# (whose waits have timeouts) get a core whenever they need one; the nodes' refinement workers,
+# SCHED_IDLE themselves, share the cores with those runs as equals (a nice value would starve
+# them). Wall time ~ the CPU time of all of them over the cores. The ROS-free runs' output is kept
+# in log/test-ros-free-[12].log and log/test-jazzy-libs-[12].log and printed after the ROS run's;
+# the status fails if any run failed (pytest's status 5, no test selected, only when every run of
+# that environment had none, as one run of all of them would have said).
+TEST_BACKGROUND ?= chrt --idle 0
+LIBS_RUN = ZEROSHOT_ROS_FREE_ONLY=1 ZEROSHOT_SHARD=$(1)/2 $(TEST_BACKGROUND) $(LIBS_VENV)/bin/python -m pytest -q \
+	-p no:cacheprovider test $(PYTEST_ARGS) > log/test-jazzy-libs-$(1).log 2>&1; echo $$? > log/test-jazzy-libs-$(1).rc
+FREE_RUN = ZEROSHOT_ROS_FREE_ONLY=1 ZEROSHOT_SHARD=$(1)/2 $(ROS_ENV) $(TEST_BACKGROUND) $(VPY) -m pytest -q \
+	-p no:cacheprovider --durations=5 test $(PYTEST_ARGS) > log/test-ros-free-$(1).log 2>&1; echo $$? > log/test-ros-free-$(1).rc
 test: $(BSTAMP) $(LSTAMP)
 	@mkdir -p $(TOP)/log
-	@cd $(TOP) && { ZEROSHOT_ROS_FREE_ONLY=1 $(LIBS_VENV)/bin/python -m pytest -q -p no:cacheprovider test \
-		$(PYTEST_ARGS) > log/test-jazzy-libs.log 2>&1; echo $$? > log/test-jazzy-libs.rc; } & \
-	cd $(TOP) && $(ROS_ENV) $(VPY) -m pytest -q --durations=15 test $(PYTEST_ARGS); ros=$$?; wait; \
-	echo '--- ROS-free tests on Ubuntu 24.04 libraries (log/test-jazzy-libs.log) ---'; \
-	cat log/test-jazzy-libs.log; libs=$$(cat log/test-jazzy-libs.rc); \
-	test $$ros -eq 0 && test $$libs -eq 0
+	@cd $(TOP) && { $(call LIBS_RUN,1); } & \
+	cd $(TOP) && { $(call LIBS_RUN,2); } & \
+	cd $(TOP) && { $(call FREE_RUN,1); } & \
+	cd $(TOP) && { $(call FREE_RUN,2); } & \
+	cd $(TOP) && ZEROSHOT_ROS_ONLY=1 $(ROS_ENV) $(VPY) -m pytest -q --durations=10 test $(PYTEST_ARGS); ros=$$?; wait; \
+	echo '--- ROS-free tests, same libraries (log/test-ros-free-1.log, -2.log) ---'; \
+	cat log/test-ros-free-1.log log/test-ros-free-2.log; \
+	echo '--- ROS-free tests on Ubuntu 24.04 libraries (log/test-jazzy-libs-1.log, -2.log) ---'; \
+	cat log/test-jazzy-libs-1.log log/test-jazzy-libs-2.log; \
+	venv="$$ros $$(cat log/test-ros-free-1.rc) $$(cat log/test-ros-free-2.rc)"; \
+	libs="$$(cat log/test-jazzy-libs-1.rc) $$(cat log/test-jazzy-libs-2.rc)"; \
+	for run in "$$venv" "$$libs"; do \
+		case " $$run " in *' 0 '*) run=$$(echo $$run | sed 's/\b5\b/0/g');; esac; \
+		for rc in $$run; do test $$rc -eq 0 || exit 1; done; \
+	done
 
 test-ros: $(BSTAMP)
 	cd $(TOP) && $(ROS_ENV) $(VPY) -m pytest -q test $(PYTEST_ARGS)

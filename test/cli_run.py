@@ -1,6 +1,8 @@
 """The CLI run in-process, as the tests of its commands call it."""
+import copy
 import re
 
+import numpy as np
 import pytest
 
 from zeroshot_calib_ros.cli import main
@@ -37,3 +39,60 @@ def same_result(a, b, key=None, rel=1e-4):
     if isinstance(a, str) and isinstance(b, str):
         return NUMBER.sub('#', a) == NUMBER.sub('#', b)
     return a == b
+
+
+def _same_arguments(a, b) -> bool:
+    if isinstance(a, (list, tuple)):
+        return isinstance(b, (list, tuple)) and len(a) == len(b) and all(map(_same_arguments, a, b))
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and np.array_equal(a, b)
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(_same_arguments(a[k], b[k]) for k in a)
+    if hasattr(a, '__dict__') and not callable(a):  # e.g. a dataclass holding arrays
+        return type(a) is type(b) and _same_arguments(vars(a), vars(b))
+    return bool(a == b)
+
+
+class RecordedComputation:
+    """One real call of ``module.name`` (a computation with a ``progress`` callback, e.g.
+    refine_from_images), recorded once and then replayed, for the tests of the CLI's progress
+    output that run the same command on a terminal and elsewhere: the CLI's own code (whether it
+    passes a callback, how it prints each report, how it ends the line) runs every time; the
+    computation itself, whose results and reports do not depend on where stderr goes, runs once.
+
+    ``record()``: the next calls run the real function, their reports passed on to the CLI's
+    callback as they come and kept. ``replay()``: later calls must have the same arguments (else
+    the test fails: the replay would not be what the CLI asked for); the kept reports are passed
+    to whatever callback the CLI gives, in order, and a copy of the kept result returned."""
+
+    def __init__(self, monkeypatch, module, name):
+        self.monkeypatch, self.module, self.name = monkeypatch, module, name
+        self.real = getattr(module, name)
+        self.calls = []  # (args, kwargs without progress, reports, result)
+        self.replayed = 0
+
+    def record(self):
+        def recording(*args, progress=None, **kwargs):
+            reports = []
+
+            def tee(report):
+                reports.append(report)
+                progress(report)
+            result = self.real(*args, progress=None if progress is None else tee, **kwargs)
+            self.calls.append((args, kwargs, reports, result))
+            return result
+        self.monkeypatch.setattr(self.module, self.name, recording)
+
+    def replay(self):
+        args0, kwargs0, reports, result = self.calls[-1]
+        assert reports, 'replay() needs a recorded call that reported progress'
+
+        def replaying(*args, progress=None, **kwargs):
+            assert _same_arguments(args, args0) and _same_arguments(kwargs, kwargs0), \
+                f'{self.name} called with other arguments than the recorded call'
+            self.replayed += 1
+            if progress is not None:
+                for report in reports:
+                    progress(report)
+            return copy.deepcopy(result)
+        self.monkeypatch.setattr(self.module, self.name, replaying)

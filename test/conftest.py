@@ -28,11 +28,57 @@ NEEDS_ROS = ['test_node.py', 'test_node_contracts.py', 'test_node_files.py', 'te
              'test_node_params.py', 'test_node_calibration_cycle.py', 'test_node_lazy.py']
 
 ROS_FREE_ONLY = os.environ.get('ZEROSHOT_ROS_FREE_ONLY') == '1'
+# ZEROSHOT_ROS_ONLY=1: the modules of NEEDS_ROS alone (`make test` runs them in one process and
+# the ROS-free modules of the same environment in another, at the same time)
+ROS_ONLY = os.environ.get('ZEROSHOT_ROS_ONLY') == '1'
+if ROS_FREE_ONLY and ROS_ONLY:
+    raise RuntimeError('ZEROSHOT_ROS_FREE_ONLY=1 and ZEROSHOT_ROS_ONLY=1 select nothing together')
+TEST_FILES = sorted({p.name for p in TEST_DIR.rglob('test_*.py') if 'mutation' not in p.parts})
+if ROS_FREE_ONLY:
+    IGNORED = set(NEEDS_ROS)
+elif ROS_ONLY:
+    IGNORED = {name for name in TEST_FILES if name not in NEEDS_ROS}
+else:
+    IGNORED = set()
+
+# ZEROSHOT_SHARD=k/n (1 <= k <= n): the k-th of n disjoint sets of whole modules (module-scoped
+# fixtures are computed once), balanced by MODULE_SECONDS; `make test` runs the ROS-free tests of
+# each environment as two such processes at the same time (one alone would be the longest chain).
+MODULE_SECONDS = {  # a module's run time, roughly (--durations=0 on 2 cores); the others: 1 s
+    'test_cli_refine.py': 90, 'test_evaluation.py': 104, 'test_readme.py': 86, 'test_spec_consistency.py': 46,
+    'test_detect.py': 41, 'test_calibration_report.py': 41, 'test_cli_output.py': 25, 'test_lens_prior.py': 35,
+    'test_cli_calibrate_checks.py': 33, 'test_image_region.py': 31, 'test_online_refinement.py': 30,
+    'test_board_fit.py': 28, 'test_calibration_input_checks.py': 28, 'test_static_curves.py': 26,
+    'test_cli_fuzz.py': 25, 'test_cli_files.py': 18, 'test_real_photos.py': 17, 'test_readme_claims.py': 17,
+    'test_calibration_file_fuzz.py': 15, 'test_cli.py': 14, 'test_models.py': 12, 'test_calibration.py': 12,
+    'test_wide_fov.py': 11, 'test_refine.py': 10,
+}
+
+
+def shards(names, n):
+    """``names`` (module file names) in ``n`` disjoint lists, the costliest first to the least loaded."""
+    parts = [[] for _ in range(n)]
+    load = [0.0] * n
+    for name in sorted(names, key=lambda m: (-MODULE_SECONDS.get(m, 1), m)):
+        k = min(range(n), key=lambda i: (load[i], i))
+        parts[k].append(name)
+        load[k] += MODULE_SECONDS.get(name, 1)
+    return parts
+
+
+SHARD = os.environ.get('ZEROSHOT_SHARD')
+if SHARD:
+    _k, _n = (int(x) for x in SHARD.split('/'))
+    if not 1 <= _k <= _n:
+        raise RuntimeError(f'ZEROSHOT_SHARD={SHARD}: k/n with 1 <= k <= n')
+    _selected = [name for name in TEST_FILES if name not in IGNORED]
+    IGNORED |= {m for k, part in enumerate(shards(_selected, _n), 1) if k != _k for m in part}
 
 
 def pytest_ignore_collect(collection_path, config):
-    """In the ROS-free run, the files of NEEDS_ROS are not collected, in whichever directory."""
-    if ROS_FREE_ONLY and collection_path.name in NEEDS_ROS:
+    """The files this run leaves out (NEEDS_ROS in the ROS-free run, the others in the ROS run,
+    the other shards' modules), by basename, in whichever directory they are."""
+    if collection_path.name in IGNORED:
         return True
     return None
 
@@ -44,4 +90,9 @@ def pytest_report_header(config):
     header = f'numpy {numpy.__version__}, scipy {scipy.__version__}, OpenCV {cv2.__version__}'
     if ROS_FREE_ONLY:
         header += f"; ROS-free run: {', '.join(NEEDS_ROS)} not collected"
+    elif ROS_ONLY:
+        header += f"; ROS run: {', '.join(NEEDS_ROS)} only"
+    if SHARD:
+        header += f'; shard {SHARD} of the modules'
+
     return header

@@ -5,6 +5,7 @@ warnings of a calibration file read, and optional tab completion.
 
 (`refine` / `calibrate` whose result is not adopted, exit status 3 and the file comment:
 test_cli_refine.py and test_cli_calibrate_checks.py.)"""
+import importlib
 import io
 import json
 import os
@@ -21,7 +22,7 @@ import yaml
 
 import zeroshot_calib_ros.cli as cli
 import zeroshot_calib_ros.cli.output as cli_output
-from cli_run import run_main, same_result
+from cli_run import RecordedComputation, run_main, same_result
 from test_calibration import TRUE, spec_of, synthetic_corners
 from zeroshot_calib_ros.core import CameraCalibration, CameraSpec, solve_zero_shot
 from zeroshot_calib_ros.core.ros_formats.calibration_file import NONZERO_EPSILON
@@ -149,6 +150,10 @@ COMMANDS = {
     'calibrate': lambda corners: ['calibrate', '--corners', str(corners), *spec_flags()],
     'evaluate': lambda corners: ['evaluate', '--corners', str(corners), *spec_flags(), '--runs', '1'],
 }
+COMPUTATION = {  # what each command computes, with a progress callback: (module, name)
+    'calibrate': lambda: (importlib.import_module('zeroshot_calib_ros.core.estimation.board_fit'), 'fit_board'),
+    'evaluate': lambda: (importlib.import_module('zeroshot_calib_ros.cli.evaluate'), 'evaluate'),
+}
 
 
 @pytest.mark.parametrize('command', COMMANDS)
@@ -160,10 +165,16 @@ def test_progress_is_shown_on_a_terminal_and_silent_on_a_pipe_or_with_json(comma
     argv = COMMANDS[command](corners_file)
     status, quiet, err = run_main(argv + ['--json'], capsys)
     assert status == 0 and not any(line.startswith(f'zeroshot-calib: {command}:') for line in err), err
+    # this run's computation is recorded (run as usual, its reports kept) and replayed in the runs
+    # below: what they check is the CLI's printing, which runs each time (cli_run.RecordedComputation)
+    computation = RecordedComputation(monkeypatch, *COMPUTATION[command]())
+    computation.record()
     status, shown, err = run_main(argv + ['--json', '--progress'], capsys)
+    assert len(computation.calls) == 1, f'the CLI ran {computation.name} once, where the test records it'
     steps = [line for line in err if line.startswith(f'zeroshot-calib: {command}: ')]
     assert status == 0 and len(steps) >= 2 and not any('\r' in line for line in err), err
     assert same_result(json.loads(shown), json.loads(quiet))
+    computation.replay()
     status, text, err = run_main(argv, capsys)
     assert status == 0 and not any(line.startswith(f'zeroshot-calib: {command}:') for line in err)
     monkeypatch.setattr(cli_output, '_is_terminal', lambda stream: True)
@@ -175,6 +186,7 @@ def test_progress_is_shown_on_a_terminal_and_silent_on_a_pipe_or_with_json(comma
     assert err.startswith(f'\rzeroshot-calib: {command}: ') and err.count('\r') >= 2, err
     assert err.split('\n')[1:] in ([''], [])  # the line is ended once, before anything else is said
     assert labels(text_on_terminal) == labels(text)
+    assert computation.replayed == 3
 
 
 @pytest.mark.parametrize('command', COMMANDS)

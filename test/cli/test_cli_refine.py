@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cli_run import same_result
+from cli_run import RecordedComputation, same_result
 from pictures import sheet_panels
 from scenes import dense_rms, render
 from zeroshot_calib_ros.cli import main
@@ -274,8 +274,13 @@ def test_progress_is_silent_on_a_pipe_and_shown_with_the_flag(views, capsys, mon
     status, quiet, err = run(capsys, *views[:2], *SPEC_FLAGS, '--json')
     assert status == 0, err
     assert 'refine round' not in err
+    # the refinement of this run is recorded (run as usual, its reports kept) for the terminal runs below
+    from zeroshot_calib_ros.core.estimation import refine as refine_module
+    refinement = RecordedComputation(monkeypatch, refine_module, 'refine_from_images')
+    refinement.record()
     status, shown, err = run(capsys, *views[:2], *SPEC_FLAGS, '--json', '--progress')
     assert status == 0, err
+    assert len(refinement.calls) == 1, 'the CLI ran refine_from_images once, through its module'
     # progress changes nothing (to 1e-2: runs differ by up to 1e-3 with numpy 1.26 on AVX-512, cli_run.same_result)
     assert same_result(json.loads(shown), json.loads(quiet), rel=1e-2)
     lines = [line for line in err.splitlines() if line.startswith('zeroshot-calib: refine round ')]
@@ -284,12 +289,17 @@ def test_progress_is_silent_on_a_pipe_and_shown_with_the_flag(views, capsys, mon
     assert lines[0].startswith('zeroshot-calib: refine round 1/2: 1/2 images, ') and 'lines found' in lines[0]
     assert 'f ' in lines[0] and 'principal point (' in lines[0]
     assert any('fitted' in line for line in lines)
-    # a terminal: shown without the flag, one line rewritten in place; --json keeps it quiet
+    # a terminal: shown without the flag, one line rewritten in place; --json keeps it quiet. What
+    # is printed where is the CLI's; the refinement (its result, its reports) is the one above,
+    # replayed: the same reports to whatever callback the CLI passes (test_refine_reports_progress_
+    # to_its_callback_and_the_result_is_the_same: a callback changes nothing in it)
+    refinement.replay()
     import zeroshot_calib_ros.cli.output as cli
     monkeypatch.setattr(cli, '_is_terminal', lambda stream: True)
     status, out, err = run(capsys, *views[:2], *SPEC_FLAGS, '--json')
-    assert status == 0 and 'refine round' not in err
+    assert status == 0 and 'refine round' not in err, err
     status, out, err = run(capsys, *views[:2], *SPEC_FLAGS)
     assert status == 0, err
     assert err.startswith('\rzeroshot-calib: refine round 1/2: 1/2 images') and err.count('\r') >= 3, err
     assert '\n' in err and 'fitted' in err.split('\n')[0]
+    assert refinement.replayed == 2
