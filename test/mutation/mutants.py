@@ -31,6 +31,7 @@ ZEROSHOT = f'{PKG}/core/zeroshot'    # spec sheet -> camera (the paper's eqs. 12
 BOARD = f'{PKG}/core/checkerboard'   # chessboard calibration and evaluation (Tables 3-4)
 ROS_FORMATS = f'{PKG}/core/ros_formats'  # files, CameraInfo, serialized images, rectification (no ROS)
 STREAMING = f'{PKG}/core/streaming'     # the pipeline the node drives (no ROS)
+CLI = f'{PKG}/cli'                   # zeroshot-calib, a module per verb
 ROS = f'{PKG}/ros'                   # the node
 
 MUTANTS = [
@@ -375,7 +376,7 @@ MUTANTS = [
     # --- command line -------------------------------------------------------------------------
     dict(
         id='cli-rectify-fov-scale-ignored',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/rectify.py',
         old='    fov_scale = 1.0 if args.fov_scale is None else args.fov_scale',
         new='    fov_scale = 1.0',
         behaviour='zeroshot-calib rectify ... [--balance B] [--fov-scale S] chooses the rectified camera',
@@ -383,15 +384,16 @@ MUTANTS = [
     ),
     dict(
         id='cli-batch-positional-columns-swapped',
-        file=f'{PKG}/cli.py',
-        old='    columns = list(BATCH_POSITIONAL)',
-        new="    columns = ['name', 'width', 'height', 'hfov', 'dfov', 'vfov']",
+        file=f'{ZEROSHOT}/batch.py',
+        old='    columns = BATCH_POSITIONAL\n',
+        new="    columns = ('name', 'width', 'height', 'hfov', 'dfov', 'vfov')\n",
         behaviour='--batch without a header row: rows are name,width,height,hfov,vfov,dfov',
-        tests=['test/cli/test_cli.py', '-k', 'batch'],
+        tests=['test/core/zeroshot/test_batch.py::test_without_a_header_the_columns_are_name_width_height_hfov_vfov_dfov',
+               'test/cli/test_cli.py', '-k', 'batch'],
     ),
     dict(
         id='cli-batch-exit-0-on-failed-rows',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/solve.py',
         old='    return 1 if failures else 0',
         new='    return 0',
         behaviour='--batch: a bad row prints {name, row, line, error}, the rest go on, exit status 1 if any row failed',
@@ -399,11 +401,12 @@ MUTANTS = [
     ),
     dict(
         id='cli-batch-camera-name-keeps-dashes',
-        file=f'{PKG}/cli.py',
+        file=f'{ZEROSHOT}/batch.py',
         old="    name = re.sub(r'[^A-Za-z0-9_]', '_', row_name)[:200]",
         new="    name = re.sub(r'[^A-Za-z0-9_-]', '_', row_name)[:200]",
         behaviour='--batch: camera_name is the row name with characters other than letters, digits and _ made _',
-        tests=['test/cli/test_cli.py', '-k', 'batch'],
+        tests=['test/core/zeroshot/test_batch.py::test_camera_names_keep_letters_digits_and_underscores_only',
+               'test/cli/test_cli.py', '-k', 'batch'],
     ),
     dict(
         id='cli-json-hfov-vfov-swapped',
@@ -415,15 +418,17 @@ MUTANTS = [
     ),
     dict(
         id='cli-json-warning-dropped',
-        file=f'{PKG}/cli.py',
-        old="    warnings += _assumption_warnings(summary)\n    summary['warning'] = warnings\n",
-        new="    warnings += _assumption_warnings(summary)\n    summary['warning'] = []\n",
+        file=f'{CLI}/solve.py',
+        old=('    warnings += assumption_warnings(solution)\n'
+             "    summary['warning'] = warnings\n"),
+        new=('    warnings += assumption_warnings(solution)\n'
+             "    summary['warning'] = []\n"),
         behaviour='solve --json: warning is the list of one-line warnings ([] when none)',
         tests=['test/cli/test_cli.py', 'test/product/test_readme.py', '-k', 'warning or json'],
     ),
     dict(
         id='cli-distortion-model-ignored',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/solve.py',
         old='        solution, args.distortion_model, args.balance, args.fov_scale, camera_name)',
         new="        solution, 'equidistant', args.balance, args.fov_scale, camera_name)",
         behaviour='solve --distortion-model equidistant|plumb_bob',
@@ -431,7 +436,7 @@ MUTANTS = [
     ),
     dict(
         id='cli-method-newton-ignored',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/solve.py',
         old="    solution = solve_zero_shot(spec, args.model, getattr(args, 'method', 'bracketed'), args.fov_tolerance)",
         new='    solution = solve_zero_shot(spec, args.model, fov_tolerance=args.fov_tolerance)',
         behaviour="solve --method newton: the paper's damped Newton iteration",
@@ -440,7 +445,7 @@ MUTANTS = [
     ),
     dict(
         id='cli-circle-options-ignored',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/arguments.py',
         old="SOLVE_SPEC_FIELDS = ('width', 'height', 'hfov', 'vfov', 'dfov', 'circle_diameter', 'circle_fov')",
         new="SOLVE_SPEC_FIELDS = ('width', 'height', 'hfov', 'vfov', 'dfov')",
         behaviour='solve --circle-diameter 1000 --circle-fov 200: circular fisheye',
@@ -449,7 +454,7 @@ MUTANTS = [
     # --- checkerboard calibration and evaluation (Tables 3 and 4) -----------------------------
     dict(
         id='calibrate-single-eps-all-of-the-start-camera',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/calibrate.py',
         old="        summary['eps_all_px'] = reprojection_error(result.camera, corners).rms",
         new="        summary['eps_all_px'] = reprojection_error(result.initial_camera, corners).rms",
         behaviour='calibrate --single: eps_all_px is eq. 20 of the calibrated camera on all given images',
@@ -457,9 +462,9 @@ MUTANTS = [
     ),
     dict(
         id='calibrate-spec-not-the-start',
-        file=f'{PKG}/cli.py',
-        old="    result = calibrate(corners, 'fc+zs' if spec is not None else 'fc', views, spec, principal_point)",
-        new="    result = calibrate(corners, 'fc', views, spec, principal_point)",
+        file=f'{CLI}/calibrate.py',
+        old="    result = calibrate(corners, 'fc+zs' if spec is not None else 'fc', views, spec, principal_point, zero_shot)",
+        new="    result = calibrate(corners, 'fc', views, spec, principal_point, zero_shot)",
         behaviour='calibrate: started from the zero-shot solution when a spec is given (FC_eq.d.+ZS)',
         tests=['test/core/checkerboard/test_calibration.py::test_cli_calibrate_single_shot_with_spec'],
     ),
@@ -551,9 +556,9 @@ MUTANTS = [
     dict(
         id='node-camera-info-frame-id-not-the-images',
         file=f'{ROS}/node.py',
-        old='            cached = self._info_templates[key] = (calibration, serialized_camera_info(calibration, header.frame_id))',
-        new=("            cached = self._info_templates[key] = (calibration, serialized_camera_info(calibration, "
-             "self.get_parameter('frame_id').value))"),
+        old='        self._frames = FramePath(serialized_camera_info)\n',
+        new=('        self._frames = FramePath(lambda calibration, frame_id: serialized_camera_info(\n'
+             "            calibration, self.get_parameter('frame_id').value))\n"),
         behaviour="camera_info with images: one per frame with exactly the image's header (stamp and frame_id)",
         tests=['test/ros/test_node_observable.py::test_camera_info_with_images_carries_exactly_each_image_header',
                'test/ros/test_node.py::test_rectified_stream_keeps_stamps_and_straightens_lines'],
@@ -569,34 +574,35 @@ MUTANTS = [
     dict(
         id='node-diagnostics-rectified-counted-as-received',
         file=f'{ROS}/node.py',
-        old=("        publish_serialized(self._rect_pub, self._rect_serialized.buffer)\n"
-             "        self._stats['frames_rectified'] += 1"),
-        new=("        publish_serialized(self._rect_pub, self._rect_serialized.buffer)\n"
-             "        self._stats['frames_received'] += 1"),
+        old=('        publish_serialized(self._rect_pub, self._frames.rectified_serialized(raw, header, rectifier))\n'
+             "        self._stats['frames_rectified'] += 1\n"),
+        new=('        publish_serialized(self._rect_pub, self._frames.rectified_serialized(raw, header, rectifier))\n'
+             "        self._stats['frames_received'] += 1\n"),
         behaviour='/diagnostics: frames received / rectified / skipped by reason',
         tests=['test/ros/test_node_observable.py::test_diagnostics_count_the_frames_received_and_rectified'],
     ),
     dict(
         id='node-diagnostics-source-always-spec',
-        file=f'{ROS}/node.py',
-        old="        values = {'source': self._active.source, 'generation': self._active.generation,",
-        new="        values = {'source': 'spec', 'generation': self._active.generation,",
+        file=f'{STREAMING}/diagnostics.py',
+        old="    values = {'source': active.source, 'generation': active.generation,",
+        new="    values = {'source': 'spec', 'generation': active.generation,",
         behaviour='/diagnostics: calibration source (spec, file, set_camera_info)',
         tests=['test/ros/test_node_observable.py::test_diagnostics_source_and_generation_follow_each_adopted_change'],
     ),
     dict(
         id='node-diagnostics-generation-frozen',
-        file=f'{ROS}/node.py',
-        old="        values = {'source': self._active.source, 'generation': self._active.generation,",
-        new="        values = {'source': self._active.source, 'generation': 0,",
+        file=f'{STREAMING}/diagnostics.py',
+        old="    values = {'source': active.source, 'generation': active.generation,",
+        new="    values = {'source': active.source, 'generation': 0,",
         behaviour='/diagnostics: calibration generation (one more per adopted change)',
-        tests=['test/ros/test_node_observable.py::test_diagnostics_source_and_generation_follow_each_adopted_change'],
+        tests=['test/core/streaming/test_diagnostics.py::test_a_calibration_in_force_is_ok_and_says_its_source',
+               'test/ros/test_node_observable.py::test_diagnostics_source_and_generation_follow_each_adopted_change'],
     ),
     dict(
         id='node-image-rect-qos-always-reliable',
         file=f'{ROS}/node.py',
-        old="            self._rect_pub = self.create_publisher(Image, 'image_rect', self._image_qos(self._reliability))",
-        new="            self._rect_pub = self.create_publisher(Image, 'image_rect', self._image_qos(ReliabilityPolicy.RELIABLE))",
+        old="            self._rect_pub = self.create_publisher(Image, 'image_rect', self._image_qos(self._reliability),",
+        new="            self._rect_pub = self.create_publisher(Image, 'image_rect', self._image_qos(ReliabilityPolicy.RELIABLE),",
         behaviour='QoS reliability follows the image publisher: image_rect too',
         tests=['test/ros/test_node_observable.py::test_image_rect_and_image_raw_qos_follow_the_image_publisher'],
     ),
@@ -675,16 +681,17 @@ MUTANTS = [
     ),
     dict(
         id='node-set-camera-info-success-although-not-saved',
-        file=f'{ROS}/node.py',
-        old="""            return False, f' but NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'""",
-        new="""            return True, f' but NOT saved to {self._url_path}: {getattr(exc, "strerror", None) or exc}'""",
+        file=f'{STREAMING}/calibration_cycle.py',
+        old="        return saved, f' and {text}' if saved else f' but {text}'",
+        new="        return True, f' and {text}' if saved else f' but {text}'",
         behaviour='set_camera_info: success means adopted and saved; adopted but not saved answers success: false',
-        tests=['test/product/test_readme_claims_ros.py::test_set_camera_info_adopted_but_not_saved_answers_false_and_says_so'],
+        tests=['test/core/streaming/test_calibration_cycle.py::test_a_save_to_a_path_that_cannot_be_a_file_says_so',
+               'test/product/test_readme_claims_ros.py::test_set_camera_info_adopted_but_not_saved_answers_false_and_says_so'],
     ),
     dict(
         id='node-image-rect-never-withdrawn',
         file=f'{ROS}/node.py',
-        old='        elif not self._active.rectify_enabled and self._rect_pub is not None:',
+        old='        elif not self._cycle.active.rectify_enabled and self._rect_pub is not None:',
         new='        elif False:',
         behaviour='image_rect is advertised only while rectify is true',
         tests=['test/ros/test_node_contracts.py::test_image_rect_is_advertised_only_while_rectifying'],
@@ -813,7 +820,7 @@ MUTANTS = [
              "        camera = attempt.camera\n"),
         new=("            break\n"),
         behaviour='refine_from_images: the second detection round uses the refined camera',
-        tests=['test/core/estimation/test_refine.py::test_refine_from_images_detects_again_with_the_refined_camera'],
+        tests=['test/core/estimation/test_refine.py::test_refine_from_images_makes_curves_again_under_the_refined_camera'],
     ),
     dict(
         id='online-refiner-keeps-frames-while-busy',
@@ -849,9 +856,11 @@ MUTANTS = [
     ),
     dict(
         id='node-refined-p-ignores-balance-and-fov-scale',
-        file=f'{ROS}/node.py',
-        old="                result.camera, width, height, settings.balance, settings.fov_scale, settings.camera_name,\n",
-        new="                result.camera, width, height, 0.0, 1.0, settings.camera_name,\n",
+        file=f'{STREAMING}/calibration_cycle.py',
+        old=('            refined_camera, basis.calibration.width, basis.calibration.height, settings.balance,\n'
+             '            settings.fov_scale, settings.camera_name, settings.distortion_model)'),
+        new=('            refined_camera, basis.calibration.width, basis.calibration.height, 0.0,\n'
+             '            1.0, settings.camera_name, settings.distortion_model)'),
         behaviour='refine: the refined CameraInfo\'s P is chosen by balance and fov_scale, as the zero-shot one\'s',
         tests=['test/ros/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
     ),
@@ -865,11 +874,11 @@ MUTANTS = [
     ),
     dict(
         id='node-refine-interval-change-not-passed-to-the-refiner',
-        file=f'{ROS}/node.py',
-        old=("        self._refine, self._refine_interval = refine, interval\n"
-             "        if self._refiner is not None:\n"
-             "            self._refiner.interval = interval\n"),
-        new=("        self._refine, self._refine_interval = refine, interval\n"),
+        file=f'{STREAMING}/refinement_control.py',
+        old=('        self.refine, self.interval = refine, interval\n'
+             '        if self.refiner is not None:\n'
+             '            self.refiner.interval = interval\n'),
+        new='        self.refine, self.interval = refine, interval\n',
         behaviour='refine_interval: a change at run time governs the running refiner',
         tests=['test/ros/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
     ),
@@ -1021,7 +1030,7 @@ MUTANTS = [
     ),
     dict(
         id='r3-cli-rectify-balance-drops-r',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/rectify.py',
         old='            return camera, new_camera_matrix(camera, balance, fov_scale), calibration.R',
         new='            return camera, new_camera_matrix(camera, balance, fov_scale), None',
         behaviour="rectify --calibration honours the file's R, whether P is the file's or chosen by --balance / --fov-scale",
@@ -1029,7 +1038,7 @@ MUTANTS = [
     ),
     dict(
         id='r3-cli-refine-same-content-counted-twice',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/refine.py',
         old=("            seen[key] = digest\n"
              "            continue\n"
              "        seen[key] = digest\n"),
@@ -1097,19 +1106,22 @@ MUTANTS = [
     ),
     dict(
         id='r3-node-restarted-refiner-forgets-reference',
-        file=f'{ROS}/node.py',
-        old='                                      reference_uncertainty_px=reference)',
-        new='                                      reference_uncertainty_px=None)',
+        file=f'{STREAMING}/refinement_control.py',
+        old='        self.refiner = self._make_refiner(spec, self.interval, initial, reference)',
+        new='        self.refiner = self._make_refiner(spec, self.interval, initial, None)',
         behaviour='refine off and on with a refined calibration in force: the new refiner must beat it by 0.7x (never re-adopts a fit no better)',
-        tests=['test/ros/test_node_params.py::test_a_restarted_refiner_does_not_readopt_a_fit_that_is_not_better'],
+        tests=['test/core/streaming/test_refinement_control.py::test_a_refined_calibration_keeps_its_refiner_and_a_new_one_starts_from_it',
+               'test/ros/test_node_params.py::test_a_restarted_refiner_does_not_readopt_a_fit_that_is_not_better'],
     ),
     dict(
         id='r3-node-uncalibrated-error-never-cleared',
-        file=f'{ROS}/node.py',
-        old='            self._uncalibrated = None\n            return calibration\n',
-        new='            return calibration\n',
+        file=f'{STREAMING}/frame_path.py',
+        old=('            self.uncalibrated = None\n'
+             '            self.last_size = (width, height)\n'),
+        new='            self.last_size = (width, height)\n',
         behaviour='/diagnostics reports ERROR only while frames of an aspect ratio no calibration describes come',
-        tests=['test/ros/test_node.py::test_the_aspect_ratio_error_clears_once_frames_the_calibration_describes_come',
+        tests=['test/core/streaming/test_frame_path.py::test_a_frame_of_another_aspect_is_skipped_with_its_reason_until_one_fits',
+               'test/ros/test_node.py::test_the_aspect_ratio_error_clears_once_frames_the_calibration_describes_come',
                'test/product/test_bringup.py::test_launch_default_spec_and_frames_of_another_aspect_ratio',
                'test/ros/test_node.py::test_bad_frames_are_skipped_counted_and_survived'],
     ),
@@ -1124,11 +1136,12 @@ MUTANTS = [
     ),
     dict(
         id='r3-node-pending-save-off-by-one',
-        file=f'{ROS}/node.py',
-        old='        if pending is not None and job.active.generation >= pending[1]:',
-        new='        if pending is not None and job.active.generation > pending[1]:',
+        file=f'{STREAMING}/calibration_cycle.py',
+        old='        if pending is None or active.generation < pending[1]:',
+        new='        if pending is None or active.generation <= pending[1]:',
         behaviour='set_camera_info answered "not in force yet": the calibration is saved once its maps are built and it is in force',
-        tests=['test/ros/test_node_calibration_cycle.py::test_a_calibration_whose_maps_take_long_is_answered_as_not_in_force_yet_and_saved_when_it_is',
+        tests=['test/core/streaming/test_calibration_cycle.py::test_set_camera_info_is_saved_once_in_force',
+               'test/ros/test_node_calibration_cycle.py::test_a_calibration_whose_maps_take_long_is_answered_as_not_in_force_yet_and_saved_when_it_is',
                'test/ros/test_node_calibration_cycle.py::test_set_camera_info_success_means_in_force'],
     ),
     # --- round 4: the lens-law prior (one FOV), its error bar, FOV consistency -----------------
@@ -1336,27 +1349,26 @@ MUTANTS = [
     ),
     dict(
         id='r4-cli-batch-assumption-not-warned',
-        file=f'{PKG}/cli.py',
-        old='            warnings += _assumption_warnings(record)\n',
+        file=f'{CLI}/solve.py',
+        old='            warnings += assumption_warnings(solution)\n',
         new='',
         behaviour="solve --batch: a row of one FOV says what it assumed in its record's warning and on stderr",
         tests=['test/cli/test_cli.py::test_batch_reports_bad_rows_and_goes_on'],
     ),
     dict(
         id='r4-cli-calibrate-spec-warning-at-default-tolerance',
-        file=f'{PKG}/cli.py',
-        old="        return solve_zero_shot(spec, 'auto', fov_tolerance=fov_tolerance).warnings",
-        new="        return solve_zero_shot(spec, 'auto').warnings",
+        file=f'{CLI}/calibrate.py',
+        old="        return solve_zero_shot(spec, 'auto', fov_tolerance=fov_tolerance)",
+        new="        return solve_zero_shot(spec, 'auto')",
         behaviour='calibrate warns about the spec at --fov-tolerance (as solve, refine)',
         tests=['test/core/zeroshot/test_spec_consistency.py::test_cli_calibrate_warns_about_the_spec',
                'test/cli/test_cli.py::test_calibrate_fov_tolerance_moves_the_fit_and_bad_values_are_one_line'],
     ),
     dict(
         id='r4-cli-refine-spec-warning-at-default-tolerance',
-        file=f'{PKG}/cli.py',
-        old="    solution = solve_zero_shot(spec, 'auto', fov_tolerance=args.fov_tolerance)\n"
-            "    # the images are detected",
-        new="    solution = solve_zero_shot(spec, 'auto')\n    # the images are detected",
+        file=f'{CLI}/refine.py',
+        old="    solution = solve_zero_shot(spec, 'auto', fov_tolerance=args.fov_tolerance)",
+        new="    solution = solve_zero_shot(spec, 'auto')",
         behaviour='refine warns about the spec at --fov-tolerance (as solve, calibrate)',
         tests=['test/core/zeroshot/test_spec_consistency.py::test_cli_refine_warns_in_its_text_and_json'],
     ),
@@ -1372,8 +1384,13 @@ MUTANTS = [
     dict(
         id='r4-node-change-not-warned',
         file=f'{ROS}/node.py',
-        old='        self._warn_spec(summary)\n        self._warn_fit(summary)\n        return SetParametersResult(successful=True)',
-        new='        self._warn_fit(summary)\n        return SetParametersResult(successful=True)',
+        old=('        for warning in summary_warnings(summary):\n'
+             "            self._log('warning', warning)\n"
+             '        return SetParametersResult(successful=True)'),
+        new=('        for warning in summary_warnings(summary):\n'
+             "            if not warning.startswith('spec: '):\n"
+             "                self._log('warning', warning)\n"
+             '        return SetParametersResult(successful=True)'),
         behaviour="A parameter change to a spec whose FOVs the camera misses is a WARN ('spec: ...'), as at start-up",
         tests=['test/ros/test_node_params.py::test_a_spec_whose_fovs_the_camera_misses_is_warned_at_start_up_on_a_change_and_in_diagnostics'],
     ),
@@ -1530,8 +1547,10 @@ MUTANTS = [
     dict(
         id='r5-refine-circle-measured-in-every-image',
         file=f'{PKG}/core/estimation/refine.py',
-        old="    measured_in = sum(r.circle is not None for r in regions)\n    solution = solve_zero_shot(spec, 'auto')",
-        new="    measured_in = len(regions)\n    solution = solve_zero_shot(spec, 'auto')",
+        old=('    measured_in = sum(r.circle is not None for r in regions)\n'
+             '    start = zero_shot_start('),
+        new=('    measured_in = len(regions)\n'
+             '    start = zero_shot_start('),
         behaviour='Refinement.circle_measured_in: how many of the images showed the image circle',
         tests=['test/core/lines/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
     ),
@@ -1626,7 +1645,7 @@ MUTANTS = [
     ),
     dict(
         id='r5-cli-measured-radius-as-diameter',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/refine.py',
         old='        args.circle_diameter = round(circle.diameter, 2)',
         new='        args.circle_diameter = round(circle.radius, 2)',
         behaviour='refine --circle-fov without --circle-diameter: the diameter measured in the images is the '
@@ -1635,7 +1654,7 @@ MUTANTS = [
     ),
     dict(
         id='r5-cli-disagreement-warning-inverted',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/refine.py',
         old='            and not circle_diameter_agrees(spec.circle_diameter, circle):',
         new='            and circle_diameter_agrees(spec.circle_diameter, circle):',
         behaviour='A --circle-diameter that disagrees with the image circle measured in the images is warned about',
@@ -1643,7 +1662,7 @@ MUTANTS = [
     ),
     dict(
         id='r5-cli-left-out-line-when-none',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/refine.py',
         old='        if result.static_curves:',
         new='        if result.static_curves is not None:',
         behaviour="refine's text says 'left out N curves' only when it left some out",
@@ -1651,7 +1670,7 @@ MUTANTS = [
     ),
     dict(
         id='r5-cli-json-static-counts-every-curve',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/refine.py',
         old="    summary['refinement']['curves_static'] = len(result.static_curves)",
         new="    summary['refinement']['curves_static'] = len(result.curves)",
         behaviour="refine --json: curves_static is the number of curves left out for staying put",
@@ -1875,7 +1894,7 @@ MUTANTS = [
     # --- what the CLI says besides the numbers (docs/cli_output.md) ------------------------------
     dict(
         id='cli-refine-refused-exits-0',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/refine.py',
         old='        print(refused[1], file=sys.stderr, flush=True)\n        return EXIT_NOT_ADOPTED',
         new='        print(refused[1], file=sys.stderr, flush=True)\n        return 0',
         behaviour='refine not adopted: exit status 3 (ran fine, the zero-shot camera printed and written)',
@@ -1883,15 +1902,17 @@ MUTANTS = [
     ),
     dict(
         id='cli-refine-refused-file-without-comment',
-        file=f'{PKG}/cli.py',
-        old="        _save_calibration(calibration, args.yaml, [refused[0]] if refused else ())\n    written = [",
-        new="        _save_calibration(calibration, args.yaml)\n    written = [",
+        file=f'{CLI}/refine.py',
+        old=('        save_calibration(calibration, args.yaml, [refused[0]] if refused else ())\n'
+             '    written = ['),
+        new=('        save_calibration(calibration, args.yaml)\n'
+             '    written = ['),
         behaviour='refine not adopted: the file written says in a # comment that it holds the zero-shot camera',
         tests=['test/cli/test_cli_refine.py::test_a_refused_refinement_says_so_in_the_file_on_stderr_and_in_its_exit_status'],
     ),
     dict(
         id='cli-calibrate-not-adopted-exits-0',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/calibrate.py',
         old='        status = EXIT_NOT_ADOPTED',
         new='        status = 0',
         behaviour='calibrate, board fit not adopted: exit status 3',
@@ -1900,7 +1921,7 @@ MUTANTS = [
     ),
     dict(
         id='cli-calibrate-P-centred-on-edge-mean',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/calibrate.py',
         old='    calibration = _calibrated_P(calibration, solution.camera, args)\n',
         new='',
         behaviour="calibrate's P has K's principal point (as ROS camera_calibration writes a fisheye's): the scene "
@@ -1925,7 +1946,7 @@ MUTANTS = [
     ),
     dict(
         id='cli-progress-shown-with-json',
-        file=f'{PKG}/cli.py',
+        file=f'{CLI}/output.py',
         old='    if args.progress or (not args.json and _is_terminal(sys.stderr)):',
         new='    if args.progress or _is_terminal(sys.stderr):',
         behaviour='refine / calibrate / evaluate: a progress line on a terminal, silent with --json',
