@@ -587,7 +587,8 @@ MUTANTS = [
         old="    values = {'source': active.source, 'generation': active.generation,",
         new="    values = {'source': 'spec', 'generation': active.generation,",
         behaviour='/diagnostics: calibration source (spec, file, set_camera_info)',
-        tests=['test/ros/test_node_observable.py::test_diagnostics_source_and_generation_follow_each_adopted_change'],
+        tests=['test/core/streaming/test_diagnostics.py::test_the_status_names_the_source_of_the_calibration_in_force',
+               'test/ros/test_node_observable.py::test_diagnostics_source_and_generation_follow_each_adopted_change'],
     ),
     dict(
         id='node-diagnostics-generation-frozen',
@@ -862,7 +863,8 @@ MUTANTS = [
         new=('            refined_camera, basis.calibration.width, basis.calibration.height, 0.0,\n'
              '            1.0, settings.camera_name, settings.distortion_model)'),
         behaviour='refine: the refined CameraInfo\'s P is chosen by balance and fov_scale, as the zero-shot one\'s',
-        tests=['test/ros/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
+        tests=['test/core/streaming/test_calibration_cycle.py::test_a_refined_calibrations_P_is_chosen_by_balance_and_fov_scale_as_the_zero_shot_ones',
+               'test/ros/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
     ),
     dict(
         id='refined-calibration-p-ignores-balance',
@@ -880,7 +882,8 @@ MUTANTS = [
              '            self.refiner.interval = interval\n'),
         new='        self.refine, self.interval = refine, interval\n',
         behaviour='refine_interval: a change at run time governs the running refiner',
-        tests=['test/ros/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
+        tests=['test/core/streaming/test_refinement_control.py::test_a_new_refine_interval_governs_the_running_refiner_without_restarting_it',
+               'test/ros/test_node_refine.py::test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_and_fov_scale'],
     ),
     # round 3: new code, mutants by an independent reviewer
     dict(

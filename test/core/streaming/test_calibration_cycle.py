@@ -161,3 +161,20 @@ def test_a_spec_that_the_solved_camera_misses_is_warned():
     summary = {'fit_error_px': 50.0, 'distortion_model': 'plumb_bob'}
     assert summary_warnings(summary)[0].endswith('(use distortion_model: equidistant for a lens this wide)')
     assert summary_warnings(None) == []
+
+
+def test_a_refined_calibrations_P_is_chosen_by_balance_and_fov_scale_as_the_zero_shot_ones(tmp_path):
+    """A user who sets balance or fov_scale gets the same choice of rectified camera after a
+    refinement is adopted: balance 1 keeps every edge (a shorter focal length than balance 0),
+    fov_scale 2 halves the focal length."""
+    cycle, _ = started(tmp_path)
+    refined_camera = a_calibration().camera()
+
+    def P(**changes):
+        active, _ = cycle.for_refinement(refined_camera, Settings.from_values(values(**changes)))
+        return active.calibration.P
+
+    tight, wide, scaled = P(balance=0.0), P(balance=1.0), P(balance=0.0, fov_scale=2.0)
+    assert wide[0, 0] < 0.95 * tight[0, 0]
+    assert scaled[0, 0] == pytest.approx(tight[0, 0] / 2, rel=1e-9)
+    assert scaled[1, 1] == pytest.approx(tight[1, 1] / 2, rel=1e-9)

@@ -85,3 +85,13 @@ def test_the_frame_path_value_says_why_the_message_path_is_taken(active):
 ])
 def test_the_rectify_text(enabled, count, ever, text):
     assert rectify_text(enabled, count, ever) == text
+
+
+@pytest.mark.parametrize('source', ['file', 'set_camera_info', 'refined'])
+def test_the_status_names_the_source_of_the_calibration_in_force(active, source):
+    """A user reads in /diagnostics where the CameraInfo comes from: a file, a set_camera_info
+    call, the refiner, not always the spec the node started from."""
+    other = ActiveCalibration(active.calibration, active.camera, source, 4, rectify=False, build_maps=False)
+    s = status(other)
+    assert s.values['source'] == source and s.message == f'calibration from {source}'
+    assert s.values['generation'] == 4

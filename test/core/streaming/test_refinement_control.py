@@ -141,3 +141,13 @@ def test_refine_settings_are_checked():
         refine_settings({'refine': 'yes', 'refine_interval': 5.0})
     with pytest.raises(SpecError):
         refine_settings({'refine': True, 'refine_interval': 0.0})
+
+
+def test_a_new_refine_interval_governs_the_running_refiner_without_restarting_it():
+    c, _, made = control()
+    c.follow(calibration('spec'), SPEC, None)
+    assert len(made) == 1 and made[0].interval == 2.0
+    c.configure(True, 5.0)
+    c.follow(calibration('spec'), SPEC, None)
+    assert len(made) == 1 and made[0].stopped is None
+    assert made[0].interval == 5.0
