@@ -249,7 +249,7 @@ class BoardFit:
         return self.fitted_camera if self.fitted_camera is not None else self.camera
 
 
-def _outliers(term: CornerTerm, camera, sigma: float) -> np.ndarray:
+def _outlier_corners(term: CornerTerm, camera, sigma: float) -> np.ndarray:
     d = np.linalg.norm(term.point_residuals(camera), axis=-1)
     d = np.where(np.isfinite(d), d, np.inf)
     return d > max(OUTLIER_K_SIGMA * sigma, OUTLIER_MIN_PX)
@@ -370,7 +370,7 @@ def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int
         x = sol.x
         camera = top.camera(x)
         sigma = estimate_sigma(term, camera, x.size, MIN_SIGMA_PX)
-        rejected = _outliers(term, camera, sigma)
+        rejected = _outlier_corners(term, camera, sigma)
         weights = np.where(rejected, 0.0, 1.0)
         if np.array_equal(weights, term.weights):
             break

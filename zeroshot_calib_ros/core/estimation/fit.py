@@ -74,7 +74,7 @@ def estimate_sigma(term, camera, parameters: int, floor: float = MIN_SIGMA_PX) -
     return max(float(math.sqrt(np.sum(d2) / dof)), floor)
 
 
-def _outliers(rms: np.ndarray, sigma: float) -> np.ndarray:
+def _outlier_curves(rms: np.ndarray, sigma: float) -> np.ndarray:
     """Curves whose RMS exceeds REJECT_SIGMAS noise sigmas and the robust spread of the RMS values."""
     median = float(np.median(rms))
     spread = 1.4826 * float(np.median(np.abs(rms - median)))
@@ -138,7 +138,7 @@ def fit_lines(term: StraightnessTerm, priors: List, base: KannalaBrandtCamera,
         rms = term.curve_rms(camera)
         # robust noise scale: the median curve's RMS among the current inliers
         sigma = max(float(np.median(rms[inliers])), MIN_SIGMA_PX)
-        new = ~_outliers(rms, sigma)
+        new = ~_outlier_curves(rms, sigma)
         if np.array_equal(new, inliers) or new.sum() < 2:
             break
         inliers = new

@@ -176,7 +176,7 @@ def _integer(name: str, value, low: int, high: int, what: str = '') -> int:
     return number
 
 
-def _number(name: str, value) -> float:
+def _file_number(name: str, value) -> float:
     """A finite number, given as text (a file) or a Python / numpy number (never bool)."""
     if isinstance(value, str) and _NUMBER_TEXT.fullmatch(value):
         number = float(value)
@@ -723,7 +723,7 @@ def _yaml_matrix(key: str, m, rows: Optional[int], cols: Optional[int]) -> np.nd
     if len(data) != count:
         raise CalibrationFileError(f'{key}.data has {len(data)} values: allowed: {count} '
                                    f'(rows {size["rows"]} x cols {size["cols"]})')
-    values = [_number(f'{key}.data[{i}]', v) for i, v in enumerate(data)]
+    values = [_file_number(f'{key}.data[{i}]', v) for i, v in enumerate(data)]
     return np.array(values, dtype=float).reshape(size['rows'], size['cols']) if rows else np.array(values)
 
 
@@ -878,7 +878,7 @@ def _parse_ini(cls, text: str) -> CameraCalibration:
             if len(tokens) not in allowed:
                 raise CalibrationFileError(f'[{name}] {key} line {number} has {len(tokens)} numbers: allowed: '
                                            + ' or '.join(map(str, allowed)))
-            values += [_number(f'[{name}] {key} line {number} value {j + 1}', token)
+            values += [_file_number(f'[{name}] {key} line {number} value {j + 1}', token)
                        for j, token in enumerate(tokens)]
         matrices[key] = np.array(values)
     D = matrices['distortion']

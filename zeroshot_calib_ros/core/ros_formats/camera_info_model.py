@@ -79,7 +79,7 @@ _FILE_FIELDS = {'width': 'image_width', 'height': 'image_height',
                 'binning_x': 'binning_x', 'binning_y': 'binning_y', 'roi': 'roi'}
 
 
-def _field(msg, name):
+def _message_field(msg, name):
     """A CameraInfo field, ROS 2 (lower-case k, d, r, p) or ROS 1 (upper-case) spelling."""
     if hasattr(msg, name):
         return getattr(msg, name)
@@ -197,13 +197,13 @@ class CameraInfoModel:
         return self._key != before
 
     def _read(self, msg, names):
-        model = _field(msg, 'distortion_model')
+        model = _message_field(msg, 'distortion_model')
         if model not in DISTORTION_COEFFICIENTS:
             raise ValueError(f"{names['distortion_model']} = {model!r} is invalid: allowed: "
                              f"{', '.join(DISTORTION_COEFFICIENTS)}")
-        width = _unsigned(_field(msg, 'width'), names['width'], 1)
-        height = _unsigned(_field(msg, 'height'), names['height'], 1)
-        raw_d = _field(msg, 'd')
+        width = _unsigned(_message_field(msg, 'width'), names['width'], 1)
+        height = _unsigned(_message_field(msg, 'height'), names['height'], 1)
+        raw_d = _message_field(msg, 'd')
         D = np.asarray([] if raw_d is None else raw_d, dtype=float).ravel()
         n = DISTORTION_COEFFICIENTS[model]
         if D.size not in (0, n):
@@ -211,9 +211,9 @@ class CameraInfoModel:
                              f"allowed: {n} (or 0: no distortion)")
         if not np.all(np.isfinite(D)):
             raise ValueError(f"{names['d']} = {D.tolist()} is invalid: allowed: finite numbers only")
-        K = _matrix(_field(msg, 'k'), names['k'], 3, 3)
-        R = _matrix(_field(msg, 'r'), names['r'], 3, 3)
-        P = _matrix(_field(msg, 'p'), names['p'], 3, 4)
+        K = _matrix(_message_field(msg, 'k'), names['k'], 3, 3)
+        R = _matrix(_message_field(msg, 'r'), names['r'], 3, 3)
+        P = _matrix(_message_field(msg, 'p'), names['p'], 3, 4)
         if not (K[0, 0] > 0 and K[1, 1] > 0):
             raise ValueError(f"{names['k']} = {K.ravel().tolist()} is invalid: allowed: fx = k[0] > 0 and "
                              'fy = k[4] > 0 (an all-zero K means an uncalibrated camera)')
@@ -223,9 +223,9 @@ class CameraInfoModel:
         if (np.abs(R @ R.T - np.eye(3)).max() > _ROTATION_TOLERANCE or np.linalg.det(R) <= 0):
             raise ValueError(f"{names['r']} = {R.ravel().tolist()} is invalid: allowed: a rotation matrix")
         # Binning 0 is binning 1 (fromCameraInfo).
-        bx = _unsigned(_field(msg, 'binning_x'), names['binning_x']) or 1
-        by = _unsigned(_field(msg, 'binning_y'), names['binning_y']) or 1
-        roi = _field(msg, 'roi')
+        bx = _unsigned(_message_field(msg, 'binning_x'), names['binning_x']) or 1
+        by = _unsigned(_message_field(msg, 'binning_y'), names['binning_y']) or 1
+        roi = _message_field(msg, 'roi')
         rx = _unsigned(roi.x_offset, f"{names['roi']}.x_offset")
         ry = _unsigned(roi.y_offset, f"{names['roi']}.y_offset")
         rw = _unsigned(roi.width, f"{names['roi']}.width")

@@ -78,7 +78,7 @@ def predicted_fov(camera, constraint: Constraint) -> float:
     return 2.0 * math.degrees(math.atan2(math.hypot(ray[0], ray[1]), ray[2]))
 
 
-def _field(c: Constraint) -> str:
+def _constraint_field(c: Constraint) -> str:
     return 'circle_fov' if c.name == 'circle' else c.name
 
 
@@ -88,7 +88,7 @@ def _misses(camera, constraints, limit) -> list:
         got = predicted_fov(camera, c)
         if not (abs(got - c.fov) <= limit):  # NaN (no ray at that edge) is a miss too
             has = f'{got:.1f} deg' if math.isfinite(got) else 'no ray at that edge'
-            out.append((c, f'{_field(c)}: given {c.fov:g} deg, the solved camera has {has}'))
+            out.append((c, f'{_constraint_field(c)}: given {c.fov:g} deg, the solved camera has {has}'))
     return out
 
 
@@ -98,8 +98,8 @@ def _pincushion_text(spec, pair) -> str:
     if max(outer.fov, inner.fov) >= 180.0:
         return ''
     bound = 2.0 * math.degrees(math.atan(math.tan(outer.half_angle) * inner.radius / outer.radius))
-    return (f'; beside {_field(outer)} {outer.fov:g} deg, a lens without pincushion distortion (all the model '
-            f'represents) has {_field(inner)} at most {bound:.1f} deg at {spec.width}x{spec.height}')
+    return (f'; beside {_constraint_field(outer)} {outer.fov:g} deg, a lens without pincushion distortion (all the model '
+            f'represents) has {_constraint_field(inner)} at most {bound:.1f} deg at {spec.width}x{spec.height}')
 
 
 def fov_warnings(solution, tolerance: float = FOV_TOLERANCE_DEG) -> List[str]:
@@ -119,7 +119,7 @@ def fov_warnings(solution, tolerance: float = FOV_TOLERANCE_DEG) -> List[str]:
     extra_limit = max(tolerance, EXTRA_FOV_WARNING_DEG)
     missed = _misses(camera, extra, extra_limit)
     if missed:
-        used = ' and '.join(_field(c) for c in fitted)
+        used = ' and '.join(_constraint_field(c) for c in fitted)
         warnings.append(
             '; '.join(text for _, text in missed) + f' (more than {extra_limit:g} deg apart; solved from '
             f'{used}, the rest only chooses the projection): the FOVs do not describe one lens; check '

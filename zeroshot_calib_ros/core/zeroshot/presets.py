@@ -56,7 +56,7 @@ def normalise_name(name: str) -> str:
     return str(name).strip().lower().replace('-', '_').replace(' ', '_')
 
 
-def _number(text: str, integer: bool = False):
+def _cell_number(text: str, integer: bool = False):
     text = text.strip()
     if not text:
         return None
@@ -86,7 +86,7 @@ def parse_presets(text: str, origin: str = PRESETS_FILE[-1]) -> Dict[str, Preset
         if not row['source'].strip():
             raise PresetError(f'{origin}:{number}: {name} has no source')
         try:
-            fields = {k: _number(row[k], integer=k in ('width', 'height')) for k in SPEC_FIELDS}
+            fields = {k: _cell_number(row[k], integer=k in ('width', 'height')) for k in SPEC_FIELDS}
             spec = CameraSpec(**fields)
         except (ValueError, SpecError) as exc:
             raise PresetError(f'{origin}:{number}: {name}: {exc}') from None
