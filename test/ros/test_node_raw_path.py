@@ -288,7 +288,7 @@ def test_a_stream_of_frames_costs_the_node_no_page_faults(peer, start_node, monk
     spec = ['--ros-args', '-p', 'width:=1920', '-p', 'height:=1080', '-p', 'hfov:=118', '-p', 'vfov:=69',
             '-p', 'rectify:=true']
     node = start_node(*spec)
-    assert _faults_per_frame(peer, node, 12) < 100
+    kept = _faults_per_frame(peer, node, 12)
     assert '  memory     frames up to 32 MiB reused from the heap (glibc mmap threshold 32 MiB, ' \
            'trim threshold 64 MiB)' in node.log
     node.stop()
@@ -297,5 +297,10 @@ def test_a_stream_of_frames_costs_the_node_no_page_faults(peer, start_node, monk
     tuned = start_node(*spec, name='tuned')
     faults = _faults_per_frame(peer, tuned, 12)
     assert faults > 1500, faults  # 1,519 pages a frame; taken and published: about twice that
+    # The node's own frames fault no pages in: what remains per frame is the rest of the process
+    # (timers, DDS, Python objects; 20-130 pages, more on a busy machine, where each frame takes
+    # longer), far below one frame's 1,519 pages and a tenth of what the same node faults in when
+    # its frames are not kept in the heap.
+    assert kept < 1519 / 4 and kept < faults / 10, (kept, faults)
     assert '  memory     allocator as the environment sets it (MALLOC_MMAP_THRESHOLD_)' in tuned.log
     assert tuned.alive() and 'Traceback' not in node.log + tuned.log
