@@ -79,9 +79,22 @@ def fit_planes(rays: np.ndarray, starts: np.ndarray, weights: Optional[np.ndarra
     ``rays`` (N, 3), ``starts`` (C,) the index of each group's first ray (groups are contiguous
     and in order), ``weights`` (N,) optional per-ray weights (squared inside the scatter)."""
     w = rays if weights is None else rays * weights[:, None]
-    outer = w[:, :, None] * w[:, None, :]
-    scatter = np.add.reduceat(outer.reshape(len(rays), 9), starts, axis=0).reshape(-1, 3, 3)
-    return smallest_eigenvectors(scatter)
+    # the six distinct products of each ray's outer product (the other three are their mirror
+    # images: the same numbers), summed per group in the same order as the whole outer product
+    x, y, z = w[:, 0], w[:, 1], w[:, 2]
+    products = np.empty((len(w), 6))
+    np.multiply(x, x, out=products[:, 0])
+    np.multiply(x, y, out=products[:, 1])
+    np.multiply(x, z, out=products[:, 2])
+    np.multiply(y, y, out=products[:, 3])
+    np.multiply(y, z, out=products[:, 4])
+    np.multiply(z, z, out=products[:, 5])
+    sums = np.add.reduceat(products, starts, axis=0)
+    return smallest_eigenvectors(np.ascontiguousarray(sums[:, _SYMMETRIC]).reshape(-1, 3, 3))
+
+
+_SYMMETRIC = np.array([0, 1, 2, 1, 3, 4, 2, 4, 5])
+"""The 3 x 3 symmetric matrix (row by row) from its six distinct entries xx, xy, xz, yy, yz, zz."""
 
 
 def smallest_eigenvectors(S: np.ndarray, iterations: int = 3) -> np.ndarray:
@@ -186,9 +199,10 @@ class StraightnessTerm:
         ok = np.all(np.isfinite(rays), axis=1)
         safe = np.where(ok[:, None], rays, 0.0)
         normals = fit_planes(safe, self.starts)
-        residual = self._residual(camera, safe, normals)
+        per_point = normals[self.curve_of_point]
+        residual = self._residual(camera, safe, per_point)
         if self.reweight:
-            angle = np.abs(np.einsum('ij,ij->i', safe, normals[self.curve_of_point]))
+            angle = np.abs(np.einsum('ij,ij->i', safe, per_point))
             with np.errstate(invalid='ignore', divide='ignore'):
                 scale = np.sqrt(np.einsum('ij,ij->i', residual, residual)) / angle
             good = np.isfinite(scale) & (angle > 1e-12) & ok
@@ -198,12 +212,12 @@ class StraightnessTerm:
             mean = np.where(count > 0, total / np.maximum(count, 1.0), 1.0)
             scale = np.where(good, scale, mean[self.curve_of_point])
             normals = fit_planes(safe, self.starts, np.where(ok, scale, 0.0))
-            residual = self._residual(camera, safe, normals)
+            residual = self._residual(camera, safe, normals[self.curve_of_point])
         residual[~ok] = np.nan
         return residual
 
-    def _residual(self, camera, rays, normals):
-        n = normals[self.curve_of_point]
+    def _residual(self, camera, rays, n):
+        """Residuals (N, 2) of ``rays`` from the planes of their curves' normals ``n`` (N, 3)."""
         on_plane = rays - np.einsum('ij,ij->i', rays, n)[:, None] * n
         with np.errstate(invalid='ignore', divide='ignore'):
             on_plane /= np.sqrt(np.einsum('ij,ij->i', on_plane, on_plane))[:, None]
@@ -211,8 +225,18 @@ class StraightnessTerm:
             return self.points - camera.project(on_plane)
         # slide along the curve's image to the closest pixel (first order): keep the component
         # of the residual across the curve's tangent g = d project / d angle along the circle
-        along = np.cross(n, on_plane)
-        both = camera.project(np.concatenate([on_plane, on_plane + TANGENT_STEP * along]))
+        # both points to project in one array: the feet, then the feet turned TANGENT_STEP along
+        # the great circle (n x foot, written out: np.cross costs several times as much)
+        count = len(on_plane)
+        both_rays = np.empty((2 * count, 3))
+        both_rays[:count] = on_plane
+        along = both_rays[count:]
+        np.subtract(n[:, 1] * on_plane[:, 2], n[:, 2] * on_plane[:, 1], out=along[:, 0])
+        np.subtract(n[:, 2] * on_plane[:, 0], n[:, 0] * on_plane[:, 2], out=along[:, 1])
+        np.subtract(n[:, 0] * on_plane[:, 1], n[:, 1] * on_plane[:, 0], out=along[:, 2])
+        along *= TANGENT_STEP
+        along += on_plane
+        both = camera.project(both_rays)
         foot = both[:len(on_plane)]
         residual = self.points - foot
         g = (both[len(on_plane):] - foot) / TANGENT_STEP
