@@ -47,6 +47,8 @@ The term follows the estimation package's term interface (``residuals(camera)`` 
 from __future__ import annotations
 
 import math
+import threading
+from collections import OrderedDict
 from typing import Optional, Sequence
 
 import numpy as np
@@ -133,6 +135,58 @@ def smallest_eigenvectors(S: np.ndarray, iterations: int = 3) -> np.ndarray:
     return v
 
 
+def _camera_key(camera) -> Optional[tuple]:
+    """What a camera's projections depend on, for the cameras that have it all in their numbers
+    (a Kannala-Brandt camera of any class: the class is part of the key, its inverse may differ);
+    None for others (never remembered)."""
+    D = getattr(camera, 'D', None)
+    if D is None or not hasattr(camera, 'fx'):
+        return None
+    return (type(camera), camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height,
+            np.asarray(D, dtype=float).tobytes())
+
+
+class _ResidualMemo:
+    """Point residuals already computed, per camera (``_camera_key``), for the curves of a term
+    and of the terms made from it by ``subset``: a solve that starts where the last one ended
+    (the next robust round, the next model order, the held-out fit) finds its first residuals and
+    Jacobian columns here instead of computing them again; the numbers are those it would
+    compute. The last ``SIZE`` cameras are kept."""
+
+    SIZE = 48
+
+    def __init__(self, sizes):
+        self.curves = len(sizes)
+        self.points = int(np.sum(sizes))
+        self.entries: 'OrderedDict[tuple, tuple]' = OrderedDict()
+        self.lock = threading.Lock()
+
+    def get(self, key, curves, points):
+        with self.lock:
+            entry = self.entries.get(key)
+            if entry is None:
+                return None
+            self.entries.move_to_end(key)
+        have, values = entry
+        if not have[curves].all():
+            return None
+        return values[points]
+
+    def put(self, key, curves, points, residual):
+        with self.lock:
+            entry = self.entries.get(key)
+            if entry is None:
+                entry = (np.zeros(self.curves, dtype=bool), np.empty((self.points, 2)))
+                self.entries[key] = entry
+                while len(self.entries) > self.SIZE:
+                    self.entries.popitem(last=False)
+            else:
+                self.entries.move_to_end(key)
+            have, values = entry
+            values[points] = residual
+            have[curves] = True
+
+
 class StraightnessTerm:
     """Pixel-space residuals of curves that must image straight 3-D lines (module docstring).
 
@@ -166,16 +220,43 @@ class StraightnessTerm:
         self.reweight = reweight
         self.perpendicular = perpendicular
         self.invalid_px = float(invalid_px)
+        # this term's curves among those of the term it was made from by ``subset`` (itself when
+        # made directly), and the residuals already computed for those curves (``_ResidualMemo``)
+        self._memo = _ResidualMemo(self.sizes)
+        self._curve_index = np.arange(len(self.curves))
+        self._point_index = np.arange(len(self.points))
 
     def __len__(self):
         return len(self.curves)
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state['_memo'] = None
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        if getattr(self, '_memo', None) is None:
+            self._memo = _ResidualMemo(self.sizes)
+            self._curve_index = np.arange(len(self.curves))
+            self._point_index = np.arange(len(self.points))
 
     def subset(self, keep) -> 'StraightnessTerm':
         """The same term over the curves selected by ``keep`` (boolean mask or indices)."""
         keep = np.asarray(keep)
         index = np.nonzero(keep)[0] if keep.dtype == bool else keep
-        return StraightnessTerm([self.curves[i] for i in index], self.sigma, self.loss, self.loss_scale,
+        term = StraightnessTerm([self.curves[i] for i in index], self.sigma, self.loss, self.loss_scale,
                                 self.reweight, self.invalid_px, self.perpendicular)
+        # the curves' residuals depend on the camera and on each curve's own points only (every
+        # plane fit, weight and projection is per curve or per point), so the terms made from
+        # one another share what they computed
+        index = np.asarray(index, dtype=int).reshape(-1)
+        term._memo = self._memo
+        term._curve_index = self._curve_index[index]
+        if len(index):
+            term._point_index = np.concatenate([self._point_index[a:a + n] for a, n in
+                                                zip(self.starts[index], self.sizes[index])])
+        return term
 
     def with_sigma(self, sigma: float) -> 'StraightnessTerm':
         term = self.subset(np.arange(len(self.curves)))
@@ -195,6 +276,17 @@ class StraightnessTerm:
 
     def point_residuals(self, camera: CameraModel) -> np.ndarray:
         """(N, 2) observed minus re-projected pixels, NaN where the camera has no ray."""
+        key = _camera_key(camera)
+        if key is not None:
+            known = self._memo.get(key, self._curve_index, self._point_index)
+            if known is not None:
+                return known
+        residual = self._point_residuals(camera)
+        if key is not None:
+            self._memo.put(key, self._curve_index, self._point_index, residual)
+        return residual
+
+    def _point_residuals(self, camera: CameraModel) -> np.ndarray:
         rays = camera.unproject(self.points)
         ok = np.all(np.isfinite(rays), axis=1)
         safe = np.where(ok[:, None], rays, 0.0)
