@@ -168,6 +168,8 @@ class _ResidualMemo:
                 return None
             self.entries.move_to_end(key)
         have, values = entry
+        if points is None:  # every curve of the memo's, in its order
+            return values.copy() if have.all() else None
         if not have[curves].all():
             return None
         return values[points]
@@ -183,8 +185,12 @@ class _ResidualMemo:
             else:
                 self.entries.move_to_end(key)
             have, values = entry
-            values[points] = residual
-            have[curves] = True
+            if points is None:
+                values[...] = residual
+                have[...] = True
+            else:
+                values[points] = residual
+                have[curves] = True
 
 
 class StraightnessTerm:
@@ -277,14 +283,20 @@ class StraightnessTerm:
     def point_residuals(self, camera: CameraModel) -> np.ndarray:
         """(N, 2) observed minus re-projected pixels, NaN where the camera has no ray."""
         key = _camera_key(camera)
+        # None: this term's points are all of the memo's, in its order (a copy's, with_sigma's)
+        points = None if self._whole() else self._point_index
         if key is not None:
-            known = self._memo.get(key, self._curve_index, self._point_index)
+            known = self._memo.get(key, self._curve_index, points)
             if known is not None:
                 return known
         residual = self._point_residuals(camera)
         if key is not None:
-            self._memo.put(key, self._curve_index, self._point_index, residual)
+            self._memo.put(key, self._curve_index, points, residual)
         return residual
+
+    def _whole(self) -> bool:
+        index = self._point_index
+        return len(index) == self._memo.points and bool(np.all(index[1:] > index[:-1]))
 
     def _point_residuals(self, camera: CameraModel) -> np.ndarray:
         rays = camera.unproject(self.points)
