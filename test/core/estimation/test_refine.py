@@ -636,3 +636,32 @@ def test_refine_from_images_detects_each_image_with_the_options_given():
     found = result.curves + result.static_curves
     assert found and {c.image for c in found} == {1}
     assert len(found) <= 4
+
+
+def test_straightness_residuals_remembered_are_those_computed():
+    """Terms made from one another by subset share the point residuals already computed for a
+    camera: each gets the numbers it would compute itself (any order of curves, subsets of
+    subsets, a pickled copy), and a Kannala-Brandt camera of another class is another key."""
+    from zeroshot_calib_ros.core.estimation.parameters import TabulatedKannalaBrandtCamera
+    rng = np.random.default_rng(5)
+    camera = KannalaBrandtCamera(600.0, 600.0, 640.0, 400.0, 1280, 800, [0.02, -0.01, 0.003, -0.0005])
+    curves = []
+    for _ in range(12):
+        a, b = rng.uniform([100, 100], [1180, 700], size=(2, 2))
+        t = np.linspace(0.0, 1.0, int(rng.integers(8, 20)))[:, None]
+        curves.append(a + t * (b - a) + rng.normal(0.0, 0.3, size=(len(t), 2)))
+    term = StraightnessTerm(curves)
+    whole = term.point_residuals(camera)
+    assert np.array_equal(whole, StraightnessTerm(curves)._point_residuals(camera), equal_nan=True)
+    order = rng.permutation(len(curves))
+    for sub in (term.subset(order), term.subset(order[:5]), term.with_sigma(2.0),
+                term.subset(order).subset(np.arange(len(curves)) % 2 == 0)):
+        alone = StraightnessTerm(sub.curves)._point_residuals(camera)
+        assert np.array_equal(sub.point_residuals(camera), alone, equal_nan=True)
+    tabulated = TabulatedKannalaBrandtCamera(camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
+                                             camera.height, camera.D)
+    assert np.array_equal(term.subset(order[:5]).point_residuals(tabulated),
+                          StraightnessTerm([curves[i] for i in order[:5]])._point_residuals(tabulated), equal_nan=True)
+    import pickle
+    copy = pickle.loads(pickle.dumps(term))
+    assert np.array_equal(copy.point_residuals(camera), whole, equal_nan=True)

@@ -45,9 +45,14 @@ class TabulatedKannalaBrandtCamera(KannalaBrandtCamera):
         theta_d = np.asarray(theta_d, dtype=float)
         top = self._theta[-1]
         theta = np.interp(theta_d, self._theta_d, self._theta)
+        k1, k2, k3, k4 = self.D
         with np.errstate(invalid='ignore', over='ignore', divide='ignore'):
             for _ in range(3):
-                theta = np.clip(theta - (self.theta_d(theta) - theta_d) / self._dtheta_d(theta), 0.0, top)
+                # theta_d and its derivative (the parent's two polynomials, term for term) sharing theta^2
+                t2 = theta * theta
+                value = theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+                slope = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+                theta = np.clip(theta - (value - theta_d) / slope, 0.0, top)
             ok = (theta_d >= 0) & (np.abs(self.theta_d(theta) - theta_d) <= 1e-12 * np.maximum(1.0, theta_d))
         out = np.where(ok, theta, np.nan)
         retry = ~ok & np.isfinite(theta_d) & (theta_d >= 0) & (theta_d <= self._theta_d[-1] * (1 + 1e-12))

@@ -633,14 +633,15 @@ class RefineProgress:
 
 def refine_from_frames(spec: CameraSpec, curves: Sequence, images, width: int, height: int,
                        fov_tolerance_deg: float = FOV_TOLERANCE_DEG, initial: Optional[KannalaBrandtCamera] = None,
-                       solution=None, image_circle=None) -> Refinement:
+                       solution=None, image_circle=None, gradients: Optional[dict] = None) -> Refinement:
     """``refine_camera`` over the curves of several frames of one moving camera, what stays put
     across them (``core.lines.static_curves``: the vehicle's or robot's own body in view, lens
     dirt) left out of the fit and listed in ``Refinement.static_curves``. ``images``: the frames,
     indexed by the curves' ``image``. What ``refine_from_images`` and the node's refine worker
-    both fit. ``solution``: as ``refine_camera``'s."""
+    both fit. ``solution``: as ``refine_camera``'s. ``gradients``: a dict kept across calls on
+    the same ``images`` (``static_curves``': their gradients computed once)."""
     from ..lines.static_curves import static_curves
-    static = static_curves(curves, images)
+    static = static_curves(curves, images, gradients)
     result = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,
                            fov_tolerance_deg, initial=initial, solution=solution, image_circle=image_circle)
     result.static_curves = [c for c, s in zip(curves, static) if s]
@@ -696,6 +697,7 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     result = None
     total_rounds = max(1, rounds)
     edges = [None] * len(images)
+    gradients = {}  # static_curves' image gradients, the same in every round
     for round_index in range(total_rounds):
         # the edge points are looked for once, with zero-shot's camera; later rounds make curves
         # of them under the refined camera (pieces straight under it, merged), which is where a
@@ -727,7 +729,7 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
         with jacobian_threads(workers):
             attempt = refine_from_frames(spec, curves, images, width, height, fov_tolerance_deg,
                                          initial=camera if result is not None else None, solution=start,
-                                         image_circle=circle if use_image_circle else None)
+                                         image_circle=circle if use_image_circle else None, gradients=gradients)
         attempt.image_circle, attempt.circle_measured_in = circle, measured_in
         if progress is not None:
             progress(RefineProgress('fit', round_index + 1, total_rounds, len(images), len(images),

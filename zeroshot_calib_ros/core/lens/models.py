@@ -274,13 +274,24 @@ class KannalaBrandtCamera(CameraModel):
 
     def project(self, rays):
         rays = _as_rays(rays)
-        r_xy = np.hypot(rays[..., 0], rays[..., 1])
+        x, y = rays[..., 0], rays[..., 1]
+        r_xy = np.hypot(x, y)
         theta = np.arctan2(r_xy, rays[..., 2])
+        off_axis = r_xy > 0
         with np.errstate(invalid='ignore', divide='ignore'):
-            scale = np.where(r_xy > 0, self.theta_d(theta) / np.where(r_xy > 0, r_xy, 1.0),
-                             1.0 / np.where(rays[..., 2] > 0, rays[..., 2], np.nan))
-        return np.stack([self.cx + self.fx * scale * rays[..., 0],
-                         self.cy + self.fy * scale * rays[..., 1]], axis=-1)
+            if off_axis.all():  # the usual case: no ray on the axis, nothing to guard
+                scale = self.theta_d(theta) / r_xy
+            else:
+                scale = np.where(off_axis, self.theta_d(theta) / np.where(off_axis, r_xy, 1.0),
+                                 1.0 / np.where(rays[..., 2] > 0, rays[..., 2], np.nan))
+        # cx + (fx scale) x, computed into the output's columns (the same numbers as np.stack's)
+        out = np.empty(r_xy.shape + (2,))
+        u, v = out[..., 0], out[..., 1]
+        np.multiply(self.fx * scale, x, out=u)
+        u += self.cx
+        np.multiply(self.fy * scale, y, out=v)
+        v += self.cy
+        return out
 
     def unproject(self, pixels):
         pixels = _as_pixels(pixels)
@@ -289,10 +300,18 @@ class KannalaBrandtCamera(CameraModel):
         theta_d = np.hypot(mx, my)
         theta = self.theta_from_theta_d(theta_d)
         s = np.sin(theta)
+        off_centre = theta_d > 0
+        out = np.empty(theta_d.shape + (3,))
         with np.errstate(invalid='ignore', divide='ignore'):
-            ux = np.where(theta_d > 0, mx / np.where(theta_d > 0, theta_d, 1.0), 0.0)
-            uy = np.where(theta_d > 0, my / np.where(theta_d > 0, theta_d, 1.0), 0.0)
-        return np.stack([ux * s, uy * s, np.cos(theta)], axis=-1)
+            if off_centre.all():  # the usual case: no pixel on the principal point
+                ux, uy = mx / theta_d, my / theta_d
+            else:
+                ux = np.where(off_centre, mx / np.where(off_centre, theta_d, 1.0), 0.0)
+                uy = np.where(off_centre, my / np.where(off_centre, theta_d, 1.0), 0.0)
+        np.multiply(ux, s, out=out[..., 0])
+        np.multiply(uy, s, out=out[..., 1])
+        np.cos(theta, out=out[..., 2])
+        return out
 
     def scaled(self, width, height):
         sx, sy = width / self.width, height / self.height

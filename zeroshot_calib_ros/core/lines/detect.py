@@ -438,7 +438,23 @@ def _tolerance(opts, length_px):
 
 
 def _path_length(points):
-    return float(np.sum(np.hypot(*np.diff(points, axis=0).T))) if len(points) > 1 else 0.0
+    if len(points) < 2:
+        return 0.0
+    step = points[1:] - points[:-1]
+    return float(np.hypot(step[:, 0], step[:, 1]).sum())
+
+
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of a 1-D array, the same number (the middle value, or the mean of the middle
+    two: their sum halved), without its generic machinery (called thousands of times per image)."""
+    n = len(values)
+    if n == 0 or np.isnan(values).any():
+        return float(np.median(values))
+    half = n // 2
+    if n % 2:
+        return float(np.partition(values, half)[half])
+    part = np.partition(values, (half - 1, half))
+    return float((part[half - 1] + part[half]) / 2.0)
 
 
 def _jacobians(camera: CameraModel, rays: np.ndarray, h: float = 1e-6) -> np.ndarray:
@@ -526,7 +542,7 @@ def _make_pieces(points, rays, jac, grad, seg, view_index, opts) -> List[_Piece]
             continue
         k = seg[idx[0]]
         pieces.append(_Piece(pts, rays[idx], jac[idx], normals[k], grad[idx], view_index, rms,
-                             float(np.median(speed[idx]))))
+                             _median(speed[idx])))
     return pieces
 
 
@@ -638,7 +654,7 @@ def _try_merge(cl: _Cluster, piece: _Piece, opts):
         theirs = cl.points[(cl.phi >= lo) & (cl.phi <= hi)]
         if len(mine) == 0 or len(theirs) == 0:
             return None
-        local = float(np.median(_nearest_distances(mine, theirs)))
+        local = _median(_nearest_distances(mine, theirs))
         if local > opts['duplicate_px']:
             return None
         if phi.min() >= cl.phi[0] and phi.max() <= cl.phi[-1]:
@@ -763,7 +779,7 @@ def _finish(camera: CameraModel, cl: _Cluster, image: ImageId, opts) -> Optional
     views = tuple(sorted({p.view for p in cl.parts}))
     main = max(cl.parts, key=lambda p: len(p.points)).view
     return Curve(points=pts.astype(np.float64), image=image, view=main, views=views, normal=normal,
-                 residual_px=rms, length_px=length, strength=float(np.median(strength)),
+                 residual_px=rms, length_px=length, strength=_median(strength),
                  span_deg=float(np.degrees(phi[-1] - phi[0])))
 
 

@@ -20,7 +20,7 @@ pose): every frame shows the same scene, its curves are the scene's, and none is
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Optional, Sequence
 
 import cv2
 import numpy as np
@@ -85,18 +85,24 @@ def _normals(points: np.ndarray) -> np.ndarray:
     return np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
 
 
-def static_curves(curves: Sequence, images) -> np.ndarray:
+def static_curves(curves: Sequence, images, gradients: Optional[dict] = None) -> np.ndarray:
     """Boolean mask over ``curves`` (``core.lines.detect.Curve``, each with its ``image``): the
     curves whose edge is at the same pixels in the other images (module docstring). ``images``:
     the images, indexed by the curves' ``image`` (a sequence or a mapping). All False with fewer
-    than two images, or when the camera did not move."""
+    than two images, or when the camera did not move. ``gradients``: a dict that keeps each
+    image's gradients by its key across calls on the same ``images`` (a later round's curves of
+    the same frames), filled here."""
     n = len(curves)
     static = np.zeros(n, dtype=bool)
     ids = [curve_image(c, 0) for c in curves]
     keys = list(dict.fromkeys(ids))
     if len(keys) < 2 or n == 0:
         return static
-    gradients = {key: _gradients(images[key]) for key in keys}
+    cache = {} if gradients is None else gradients
+    for key in keys:
+        if key not in cache:
+            cache[key] = _gradients(images[key])
+    gradients = {key: cache[key] for key in keys}
     # every curve's points and normals in one array, each image sampled once along all of them
     # (the per-point sampling is the same as curve by curve)
     usable, points, normals = [], [], []

@@ -47,6 +47,8 @@ The term follows the estimation package's term interface (``residuals(camera)`` 
 from __future__ import annotations
 
 import math
+import threading
+from collections import OrderedDict
 from typing import Optional, Sequence
 
 import numpy as np
@@ -79,9 +81,22 @@ def fit_planes(rays: np.ndarray, starts: np.ndarray, weights: Optional[np.ndarra
     ``rays`` (N, 3), ``starts`` (C,) the index of each group's first ray (groups are contiguous
     and in order), ``weights`` (N,) optional per-ray weights (squared inside the scatter)."""
     w = rays if weights is None else rays * weights[:, None]
-    outer = w[:, :, None] * w[:, None, :]
-    scatter = np.add.reduceat(outer.reshape(len(rays), 9), starts, axis=0).reshape(-1, 3, 3)
-    return smallest_eigenvectors(scatter)
+    # the six distinct products of each ray's outer product (the other three are their mirror
+    # images: the same numbers), summed per group in the same order as the whole outer product
+    x, y, z = w[:, 0], w[:, 1], w[:, 2]
+    products = np.empty((len(w), 6))
+    np.multiply(x, x, out=products[:, 0])
+    np.multiply(x, y, out=products[:, 1])
+    np.multiply(x, z, out=products[:, 2])
+    np.multiply(y, y, out=products[:, 3])
+    np.multiply(y, z, out=products[:, 4])
+    np.multiply(z, z, out=products[:, 5])
+    sums = np.add.reduceat(products, starts, axis=0)
+    return smallest_eigenvectors(np.ascontiguousarray(sums[:, _SYMMETRIC]).reshape(-1, 3, 3))
+
+
+_SYMMETRIC = np.array([0, 1, 2, 1, 3, 4, 2, 4, 5])
+"""The 3 x 3 symmetric matrix (row by row) from its six distinct entries xx, xy, xz, yy, yz, zz."""
 
 
 def smallest_eigenvectors(S: np.ndarray, iterations: int = 3) -> np.ndarray:
@@ -120,6 +135,64 @@ def smallest_eigenvectors(S: np.ndarray, iterations: int = 3) -> np.ndarray:
     return v
 
 
+def _camera_key(camera) -> Optional[tuple]:
+    """What a camera's projections depend on, for the cameras that have it all in their numbers
+    (a Kannala-Brandt camera of any class: the class is part of the key, its inverse may differ);
+    None for others (never remembered)."""
+    D = getattr(camera, 'D', None)
+    if D is None or not hasattr(camera, 'fx'):
+        return None
+    return (type(camera), camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height,
+            np.asarray(D, dtype=float).tobytes())
+
+
+class _ResidualMemo:
+    """Point residuals already computed, per camera (``_camera_key``), for the curves of a term
+    and of the terms made from it by ``subset``: a solve that starts where the last one ended
+    (the next robust round, the next model order, the held-out fit) finds its first residuals and
+    Jacobian columns here instead of computing them again; the numbers are those it would
+    compute. The last ``SIZE`` cameras are kept."""
+
+    SIZE = 48
+
+    def __init__(self, sizes):
+        self.curves = len(sizes)
+        self.points = int(np.sum(sizes))
+        self.entries: 'OrderedDict[tuple, tuple]' = OrderedDict()
+        self.lock = threading.Lock()
+
+    def get(self, key, curves, points):
+        with self.lock:
+            entry = self.entries.get(key)
+            if entry is None:
+                return None
+            self.entries.move_to_end(key)
+        have, values = entry
+        if points is None:  # every curve of the memo's, in its order
+            return values.copy() if have.all() else None
+        if not have[curves].all():
+            return None
+        return values[points]
+
+    def put(self, key, curves, points, residual):
+        with self.lock:
+            entry = self.entries.get(key)
+            if entry is None:
+                entry = (np.zeros(self.curves, dtype=bool), np.empty((self.points, 2)))
+                self.entries[key] = entry
+                while len(self.entries) > self.SIZE:
+                    self.entries.popitem(last=False)
+            else:
+                self.entries.move_to_end(key)
+            have, values = entry
+            if points is None:
+                values[...] = residual
+                have[...] = True
+            else:
+                values[points] = residual
+                have[curves] = True
+
+
 class StraightnessTerm:
     """Pixel-space residuals of curves that must image straight 3-D lines (module docstring).
 
@@ -153,16 +226,43 @@ class StraightnessTerm:
         self.reweight = reweight
         self.perpendicular = perpendicular
         self.invalid_px = float(invalid_px)
+        # this term's curves among those of the term it was made from by ``subset`` (itself when
+        # made directly), and the residuals already computed for those curves (``_ResidualMemo``)
+        self._memo = _ResidualMemo(self.sizes)
+        self._curve_index = np.arange(len(self.curves))
+        self._point_index = np.arange(len(self.points))
 
     def __len__(self):
         return len(self.curves)
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state['_memo'] = None
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        if getattr(self, '_memo', None) is None:
+            self._memo = _ResidualMemo(self.sizes)
+            self._curve_index = np.arange(len(self.curves))
+            self._point_index = np.arange(len(self.points))
 
     def subset(self, keep) -> 'StraightnessTerm':
         """The same term over the curves selected by ``keep`` (boolean mask or indices)."""
         keep = np.asarray(keep)
         index = np.nonzero(keep)[0] if keep.dtype == bool else keep
-        return StraightnessTerm([self.curves[i] for i in index], self.sigma, self.loss, self.loss_scale,
+        term = StraightnessTerm([self.curves[i] for i in index], self.sigma, self.loss, self.loss_scale,
                                 self.reweight, self.invalid_px, self.perpendicular)
+        # the curves' residuals depend on the camera and on each curve's own points only (every
+        # plane fit, weight and projection is per curve or per point), so the terms made from
+        # one another share what they computed
+        index = np.asarray(index, dtype=int).reshape(-1)
+        term._memo = self._memo
+        term._curve_index = self._curve_index[index]
+        if len(index):
+            term._point_index = np.concatenate([self._point_index[a:a + n] for a, n in
+                                                zip(self.starts[index], self.sizes[index])])
+        return term
 
     def with_sigma(self, sigma: float) -> 'StraightnessTerm':
         term = self.subset(np.arange(len(self.curves)))
@@ -182,13 +282,31 @@ class StraightnessTerm:
 
     def point_residuals(self, camera: CameraModel) -> np.ndarray:
         """(N, 2) observed minus re-projected pixels, NaN where the camera has no ray."""
+        key = _camera_key(camera)
+        # None: this term's points are all of the memo's, in its order (a copy's, with_sigma's)
+        points = None if self._whole() else self._point_index
+        if key is not None:
+            known = self._memo.get(key, self._curve_index, points)
+            if known is not None:
+                return known
+        residual = self._point_residuals(camera)
+        if key is not None:
+            self._memo.put(key, self._curve_index, points, residual)
+        return residual
+
+    def _whole(self) -> bool:
+        index = self._point_index
+        return len(index) == self._memo.points and bool(np.all(index[1:] > index[:-1]))
+
+    def _point_residuals(self, camera: CameraModel) -> np.ndarray:
         rays = camera.unproject(self.points)
         ok = np.all(np.isfinite(rays), axis=1)
         safe = np.where(ok[:, None], rays, 0.0)
         normals = fit_planes(safe, self.starts)
-        residual = self._residual(camera, safe, normals)
+        per_point = normals[self.curve_of_point]
+        residual = self._residual(camera, safe, per_point)
         if self.reweight:
-            angle = np.abs(np.einsum('ij,ij->i', safe, normals[self.curve_of_point]))
+            angle = np.abs(np.einsum('ij,ij->i', safe, per_point))
             with np.errstate(invalid='ignore', divide='ignore'):
                 scale = np.sqrt(np.einsum('ij,ij->i', residual, residual)) / angle
             good = np.isfinite(scale) & (angle > 1e-12) & ok
@@ -198,12 +316,12 @@ class StraightnessTerm:
             mean = np.where(count > 0, total / np.maximum(count, 1.0), 1.0)
             scale = np.where(good, scale, mean[self.curve_of_point])
             normals = fit_planes(safe, self.starts, np.where(ok, scale, 0.0))
-            residual = self._residual(camera, safe, normals)
+            residual = self._residual(camera, safe, normals[self.curve_of_point])
         residual[~ok] = np.nan
         return residual
 
-    def _residual(self, camera, rays, normals):
-        n = normals[self.curve_of_point]
+    def _residual(self, camera, rays, n):
+        """Residuals (N, 2) of ``rays`` from the planes of their curves' normals ``n`` (N, 3)."""
         on_plane = rays - np.einsum('ij,ij->i', rays, n)[:, None] * n
         with np.errstate(invalid='ignore', divide='ignore'):
             on_plane /= np.sqrt(np.einsum('ij,ij->i', on_plane, on_plane))[:, None]
@@ -211,8 +329,18 @@ class StraightnessTerm:
             return self.points - camera.project(on_plane)
         # slide along the curve's image to the closest pixel (first order): keep the component
         # of the residual across the curve's tangent g = d project / d angle along the circle
-        along = np.cross(n, on_plane)
-        both = camera.project(np.concatenate([on_plane, on_plane + TANGENT_STEP * along]))
+        # both points to project in one array: the feet, then the feet turned TANGENT_STEP along
+        # the great circle (n x foot, written out: np.cross costs several times as much)
+        count = len(on_plane)
+        both_rays = np.empty((2 * count, 3))
+        both_rays[:count] = on_plane
+        along = both_rays[count:]
+        np.subtract(n[:, 1] * on_plane[:, 2], n[:, 2] * on_plane[:, 1], out=along[:, 0])
+        np.subtract(n[:, 2] * on_plane[:, 0], n[:, 0] * on_plane[:, 2], out=along[:, 1])
+        np.subtract(n[:, 0] * on_plane[:, 1], n[:, 1] * on_plane[:, 0], out=along[:, 2])
+        along *= TANGENT_STEP
+        along += on_plane
+        both = camera.project(both_rays)
         foot = both[:len(on_plane)]
         residual = self.points - foot
         g = (both[len(on_plane):] - foot) / TANGENT_STEP
