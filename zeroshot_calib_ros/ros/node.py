@@ -41,7 +41,6 @@ the start-up log and /diagnostics (``frame_path``) say which path is in use and 
 """
 from __future__ import annotations
 
-import array
 import os
 import sys
 import threading
@@ -57,7 +56,6 @@ from typing import Optional
 for _name in ('OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER', 'OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN'):
     os.environ.setdefault(_name, '0')
 
-import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
 import rclpy.executors  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
@@ -79,7 +77,7 @@ from ..core.ros_formats.cdr_image import CdrError, NotPlainCdr, parse_image, pix
 from ..core.streaming.diagnostics import calibration_status, frame_path_text, rectify_text  # noqa: E402
 from ..core.streaming.frame_path import FramePath  # noqa: E402
 from ..core.streaming.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded,  # noqa: E402
-                                          binning_or_roi_reason, default_map_budget, image_array)
+                                          binning_or_roi_reason, default_map_budget)
 from ..core.streaming.heap import keep_frames_in_heap, resident_bytes  # noqa: E402
 from ..core.streaming.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
 from ..core.streaming.refinement_control import RefinementControl, refine_settings  # noqa: E402
@@ -172,7 +170,6 @@ class ZeroShotCalibNode(Node):
         self._rect_subscribers = 0  # image_rect's matched subscriptions, as last read
         self._rect_ever_subscribed = False
         self._ahead_jobs = []  # MapJobs of the maps built when image_rect got a subscriber
-        self._out_buffer = None
         self._rect_msg = Image()
         self._info_cache = (None, None)  # (calibration, its CameraInfo), reused frame after frame
         self._serialized, self._frame_path_reason = frame_path_choice()
@@ -526,21 +523,15 @@ class ZeroShotCalibNode(Node):
         self._stats['frames_rectified'] += 1
 
     def _publish_rectified(self, msg: Image, rectifier):
-        image = image_array(msg.data, msg.width, msg.height, msg.step, msg.encoding, msg.is_bigendian)
-        nbytes = image.nbytes
-        # The output message owns one buffer reused frame after frame; rclpy takes an
-        # array('B') as is and serialises it during publish(), so reuse is safe.
-        if self._out_buffer is None or len(self._out_buffer) != nbytes:
-            self._out_buffer = array.array('B', bytes(nbytes))
-        out = np.frombuffer(self._out_buffer, dtype=image.dtype).reshape(image.shape)
-        rectifier.rectify(image, out=out)
+        data, height, width, step = self._frames.rectified_pixels(msg.data, msg.width, msg.height, msg.step,
+                                                                  msg.encoding, msg.is_bigendian, rectifier)
         rect = self._rect_msg
         rect.header = msg.header
-        rect.height, rect.width = image.shape[:2]
+        rect.height, rect.width = height, width
         rect.encoding = msg.encoding
         rect.is_bigendian = 0
-        rect.step = image.shape[1] * (image.shape[2] if image.ndim == 3 else 1) * image.dtype.itemsize
-        rect.data = self._out_buffer
+        rect.step = step
+        rect.data = data
         self._rect_pub.publish(rect)
         self._stats['frames_rectified'] += 1
 
