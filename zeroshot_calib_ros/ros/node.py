@@ -5,9 +5,10 @@
 Only ROS plumbing lives here (parameters, topics, the service, QoS, timers, logging); every
 computation is in ``zeroshot_calib_ros.core``, the node's own in rclpy-free collaborators in
 ``core/streaming/``: ``frame_path`` (a frame -> its CameraInfo bytes, its rectified bytes or why
-it is skipped), ``calibration_cycle`` (which calibration is in force, the candidates from the
-spec, a file, parameters, set_camera_info and refinement, the saves), ``refinement_control`` (the
-refiner's life cycle) and ``diagnostics`` (the /diagnostics status and the state texts).
+it is skipped), ``map_requests`` (which maps are built when, and what a finished build means),
+``calibration_cycle`` (which calibration is in force, the candidates from the spec, a file,
+parameters, set_camera_info and refinement, the saves), ``refinement_control`` (the refiner's life
+cycle) and ``diagnostics`` (the /diagnostics status and the state texts).
 
 Threads: every ROS callback runs on the executor thread, and only there is the calibration in
 force (``_active``) replaced. Rectification maps of a new calibration (parameter change,
@@ -23,10 +24,10 @@ readers DDS would deliver that frame to), and no maps are built before one subsc
 image_proc does nothing until its output is subscribed. CameraInfo goes out with every frame
 either way. When a subscriber appears (its match event, or the count read by the next frame), the
 maps of the configured size and of the last frame's size are built at once, on every core; a
-frame that comes while they are being built waits for them up to FIRST_FRAME_WAIT_SECONDS, so
-the first frame after a subscriber appears is rectified (with the EventsExecutor there is no
-match event: the first frame starts the maps and waits). A calibration adopted while nobody
-subscribes is in force at once (no maps to wait for). The start-up log and /diagnostics
+frame that comes while they are being built waits for them up to FIRST_FRAME_WAIT_SECONDS
+(``map_requests``), so the first frame after a subscriber appears is rectified (with the
+EventsExecutor there is no match event: the first frame starts the maps and waits). A
+calibration adopted while nobody subscribes is in force at once (no maps to wait for). The start-up log and /diagnostics
 (``rectify``, ``image_rect_subscribers``, ``frames_rectified``, ``frames_not_rectified_no_subscriber``)
 say which state the node is in.
 
@@ -41,10 +42,8 @@ the start-up log and /diagnostics (``frame_path``) say which path is in use and 
 """
 from __future__ import annotations
 
-import array
 import os
 import sys
-import threading
 import time
 from collections import Counter
 from typing import Optional
@@ -57,7 +56,6 @@ from typing import Optional
 for _name in ('OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER', 'OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN'):
     os.environ.setdefault(_name, '0')
 
-import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
 import rclpy.executors  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
@@ -79,9 +77,10 @@ from ..core.ros_formats.cdr_image import CdrError, NotPlainCdr, parse_image, pix
 from ..core.streaming.diagnostics import calibration_status, frame_path_text, rectify_text  # noqa: E402
 from ..core.streaming.frame_path import FramePath  # noqa: E402
 from ..core.streaming.image_frames import (ActiveCalibration, FrameSkipped, MapBudgetExceeded,  # noqa: E402
-                                          binning_or_roi_reason, default_map_budget, image_array)
+                                          default_map_budget)
 from ..core.streaming.heap import keep_frames_in_heap, resident_bytes  # noqa: E402
-from ..core.streaming.map_builder import REBUILD_MAP_THREADS, MapBuilder, MapJob  # noqa: E402
+from ..core.streaming.map_builder import MapJob  # noqa: E402
+from ..core.streaming.map_requests import MapRequests  # noqa: E402
 from ..core.streaming.refinement_control import RefinementControl, refine_settings  # noqa: E402
 from ..core.streaming.node_parameters import (CALIBRATION_PARAMETERS, PARAMETERS,  # noqa: E402
                                              RECTIFICATION_PARAMETERS, Settings, changed_parameters,
@@ -107,12 +106,6 @@ wait for the reply anyway) so that its "success" means in force; a larger calibr
 answered as accepted, with its maps being built, and saved when it is in force."""
 FRAME_PATH_ENV = 'ZEROSHOT_CALIB_FRAME_PATH'
 """'serialized' (the default) or 'message': how frames are taken and published (see the module)."""
-FIRST_FRAME_WAIT_SECONDS = 0.25
-"""How long a frame waits for the maps being built because image_rect just got a subscriber (so
-that the first frame after a subscriber appears is rectified): 1080p maps took 0.19-0.58 s on
-every core of a 2-core machine busy with other jobs, 640x360 maps 0.06-0.09 s. Bounded so that
-the frames queued behind it (image_raw keeps 10) are not lost; the frames that come while maps
-take longer are counted as maps_pending and not rectified."""
 REFINE_PARAMETERS = ('refine', 'refine_interval')
 
 
@@ -169,16 +162,11 @@ class ZeroShotCalibNode(Node):
         self._reliability = ReliabilityPolicy.RELIABLE
         self._image_reliability = ReliabilityPolicy.BEST_EFFORT
         self._rect_pub = None
-        self._rect_subscribers = 0  # image_rect's matched subscriptions, as last read
-        self._rect_ever_subscribed = False
-        self._ahead_jobs = []  # MapJobs of the maps built when image_rect got a subscriber
-        self._out_buffer = None
         self._rect_msg = Image()
         self._info_cache = (None, None)  # (calibration, its CameraInfo), reused frame after frame
         self._serialized, self._frame_path_reason = frame_path_choice()
         # the frame path's state: last frame size, uncalibrated frames, failed maps, reused buffers
         self._frames = FramePath(serialized_camera_info)
-        self._maps_build_ms = float('nan')
         self._reverting = False
 
         self._map_budget = number_in_range('max_map_memory_mb', self.get_parameter('max_map_memory_mb').value,
@@ -207,9 +195,7 @@ class ZeroShotCalibNode(Node):
         self._publish_own_info()
         # The map builder (a low-priority thread); no maps yet: they are built when image_rect
         # gets a subscriber (lazy rectification, see the module's text).
-        self._built = []
-        self._built_lock = threading.Lock()
-        self._builder = MapBuilder(self._on_builder_done)
+        self._maps = MapRequests(self._frames, self._map_budget_bytes, self._log, self._on_maps_finished)
 
         self._parameter_service = AtomicParameterService(self)
         self._create_image_endpoints()
@@ -281,7 +267,7 @@ class ZeroShotCalibNode(Node):
         ])
 
     def _rectify_text(self) -> str:
-        return rectify_text(self._cycle.active.rectify_enabled, self._rect_subscribers, self._rect_ever_subscribed)
+        return rectify_text(self._cycle.active.rectify_enabled, self._maps.subscribers, self._maps.ever_subscribed)
 
     def _frame_path_text(self) -> str:
         return frame_path_text(self._serialized, self._frame_path_reason)
@@ -328,48 +314,11 @@ class ZeroShotCalibNode(Node):
         self._rect_has_subscriber()
 
     def _rect_has_subscriber(self) -> bool:
-        """Whether image_rect has a subscriber now (per frame: a few microseconds); when the first
-        one appears, the maps are built at once (``_maps_ahead``), and the change is logged."""
+        """Whether image_rect has a subscriber now (its matched-subscription count, read per frame:
+        a few microseconds); when the first one appears, ``MapRequests`` builds the maps at once."""
         pub = self._rect_pub
-        count = pub.get_subscription_count() if pub is not None else 0
-        before = self._rect_subscribers
-        if count == before:
-            return count > 0
-        self._rect_subscribers = count
-        if count and not before:
-            self._rect_ever_subscribed = True
-            sizes = self._maps_ahead(self._cycle.active) if self._cycle.newest is self._cycle.active else []
-            self._log('info', 'image_rect has a subscriber: rectifying frames' +
-                      (f' (maps of {", ".join(f"{w}x{h}" for w, h in sizes)} being built)' if sizes else ''))
-        elif not count and self._cycle.active.rectify_enabled:
-            self._log('info', 'image_rect has no subscriber: frames are not rectified until one subscribes '
-                      '(CameraInfo still goes out with every frame)')
-        return count > 0
-
-    def _maps_ahead(self, active: ActiveCalibration) -> list:
-        """Build the maps of the configured size and of the last frame's size for ``active`` now,
-        on every core (image_rect has just got a subscriber); returns the sizes being built."""
-        if not active.rectify_enabled or binning_or_roi_reason(active.calibration):
-            return []
-        self._ahead_jobs = [job for job in self._ahead_jobs if not job.finished.is_set()]
-        sizes = self._frames.ahead_sizes(active, self._map_budget_bytes)
-        building = []
-        for width, height in sizes:
-            if active.rectifier_for(width, height) is None:
-                self._ahead_jobs.append(self._builder.request_size(active, width, height, map_threads=None))
-                building.append((width, height))
-        return building
-
-    def _ahead_rectifier(self, active: ActiveCalibration, width: int, height: int):
-        """The rectifier of a frame whose maps are being built because image_rect has just got a
-        subscriber: waited for, up to FIRST_FRAME_WAIT_SECONDS, by the first such frame only
-        (None if not ready by then: that frame and the next ones are counted as maps_pending)."""
-        for job in self._ahead_jobs:
-            if job.active is active and job.size == (width, height):
-                self._ahead_jobs.remove(job)
-                job.finished.wait(FIRST_FRAME_WAIT_SECONDS)
-                return active.rectifier_for(width, height)
-        return None
+        return self._maps.subscribers_now(pub.get_subscription_count() if pub is not None else 0,
+                                          self._cycle.active, self._cycle.newest)
 
     @staticmethod
     def _image_qos(reliability, depth=5):
@@ -492,24 +441,10 @@ class ZeroShotCalibNode(Node):
             self._stats['frames_not_rectified_no_subscriber'] += 1
             return None
         try:
-            rectifier = active.rectifier_for(width, height) or self._ahead_rectifier(active, width, height)
-            if rectifier is None:
-                self._request_maps(active, calibration, width, height)
-            return rectifier
+            return self._maps.rectifier(active, calibration, width, height)
         except FrameSkipped as exc:
             self._skip(exc)
-        except Exception as exc:
-            self._skip(FrameSkipped('error', f'cannot rectify frame: {exc}'))
         return None
-
-    def _request_maps(self, active: ActiveCalibration, calibration: CameraCalibration, width: int, height: int):
-        """A frame whose maps are not built: skipped (counted) while the builder builds them, so
-        that one frame of a new size never stalls the stream."""
-        self._frames.check_maps_request(active, calibration, width, height, self._map_budget_bytes)
-        # (the configured size's maps too, when they are missing: being built since image_rect got
-        # a subscriber, the request returns that build)
-        self._builder.request_size(active, width, height)
-        raise self._frames.maps_pending(width, height)
 
     def _camera_info_for(self, calibration: CameraCalibration) -> CameraInfo:
         """The CameraInfo of ``calibration``, filled once and reused (only the header changes;
@@ -526,21 +461,15 @@ class ZeroShotCalibNode(Node):
         self._stats['frames_rectified'] += 1
 
     def _publish_rectified(self, msg: Image, rectifier):
-        image = image_array(msg.data, msg.width, msg.height, msg.step, msg.encoding, msg.is_bigendian)
-        nbytes = image.nbytes
-        # The output message owns one buffer reused frame after frame; rclpy takes an
-        # array('B') as is and serialises it during publish(), so reuse is safe.
-        if self._out_buffer is None or len(self._out_buffer) != nbytes:
-            self._out_buffer = array.array('B', bytes(nbytes))
-        out = np.frombuffer(self._out_buffer, dtype=image.dtype).reshape(image.shape)
-        rectifier.rectify(image, out=out)
+        data, height, width, step = self._frames.rectified_pixels(msg.data, msg.width, msg.height, msg.step,
+                                                                  msg.encoding, msg.is_bigendian, rectifier)
         rect = self._rect_msg
         rect.header = msg.header
-        rect.height, rect.width = image.shape[:2]
+        rect.height, rect.width = height, width
         rect.encoding = msg.encoding
         rect.is_bigendian = 0
-        rect.step = image.shape[1] * (image.shape[2] if image.ndim == 3 else 1) * image.dtype.itemsize
-        rect.data = self._out_buffer
+        rect.step = step
+        rect.data = data
         self._rect_pub.publish(rect)
         self._stats['frames_rectified'] += 1
 
@@ -561,14 +490,10 @@ class ZeroShotCalibNode(Node):
 
     # --- housekeeping: QoS matching, memory and diagnostics ---------------------------------
     def _on_housekeeping(self):
-        if self._built:  # maps finished before the node was added to an executor
-            self._on_calibration_built()
+        self._on_calibration_built()  # maps that finished before the node was added to an executor
         self._match_image_reliability()
         self._rect_has_subscriber()
-        for size in self._cycle.active.release_unused(OTHER_SIZE_IDLE_SECONDS):
-            self._builder.forget_size(self._cycle.active, *size)
-            self.get_logger().info(f'rectification maps of {size[0]}x{size[1]} released (no such frame '
-                                   f'for {OTHER_SIZE_IDLE_SECONDS:g} s)')
+        self._maps.release_unused(self._cycle.active, OTHER_SIZE_IDLE_SECONDS)
         self._poll_refiner()
         self._publish_diagnostics()
 
@@ -592,12 +517,12 @@ class ZeroShotCalibNode(Node):
     def _publish_diagnostics(self):
         if self._frames.uncalibrated is not None and not self._camera_exists():
             self._frames.uncalibrated = None  # the camera has stopped
-        pending = self._builder.pending
+        pending = self._maps.pending
         state = calibration_status(
             self.get_name(), self._cycle.active, serialized=self._serialized, frame_path_reason=self._frame_path_reason,
-            executor=self._executor_text, rectify=self._rectify_text(), rect_subscribers=self._rect_subscribers,
+            executor=self._executor_text, rectify=self._rectify_text(), rect_subscribers=self._maps.subscribers,
             qos_reliability=self._reliability.name, pending_generation=pending.active.generation if pending else '',
-            maps_build_ms=self._maps_build_ms, process_rss_bytes=resident_bytes(),
+            maps_build_ms=self._maps.maps_build_ms, process_rss_bytes=resident_bytes(),
             refine=self._refinement.diagnostics(),
             stats=self._stats, uncalibrated=self._frames.uncalibrated)
         status = DiagnosticStatus(level=getattr(DiagnosticStatus, state.level), name=state.name,
@@ -671,15 +596,12 @@ class ZeroShotCalibNode(Node):
             return job
         streaming = self._last_image_time is not None and \
             time.monotonic() - self._last_image_time < IMAGE_IDLE_SECONDS
-        job.map_threads = REBUILD_MAP_THREADS if streaming and not every_core else None
-        self._builder.submit(job)
+        self._maps.submit(job, streaming, every_core)
         return job
 
-    def _on_builder_done(self, job: MapJob):
-        """Builder thread: hand the job to the executor thread (a task: both executors take one
-        from any thread; before the node is added to one, housekeeping takes the job)."""
-        with self._built_lock:
-            self._built.append(job)
+    def _on_maps_finished(self):
+        """Builder thread: a map build ended; the executor thread takes it (a task: both executors
+        take one from any thread; before the node is added to one, housekeeping takes it)."""
         executor = self.executor
         if executor is None:
             return
@@ -689,31 +611,14 @@ class ZeroShotCalibNode(Node):
             pass
 
     def _on_calibration_built(self):
-        with self._built_lock:
-            jobs, self._built = self._built, []
-        for job in jobs:
-            if job.size is not None:
-                if job.error is not None:
-                    self._stats['size_maps_failed'] += 1
-                    self._frames.maps_failed(job.active, job.size, str(job.error))
-                    self.get_logger().warning(f'rectification maps of {job.size[0]}x{job.size[1]} not built: '
-                                              f'{job.error}; frames of that size stay unrectified')
-                else:
-                    if job.size == job.active.size:
-                        self._maps_build_ms = job.seconds * 1e3
-                    self.get_logger().info(f'rectification maps of {job.size[0]}x{job.size[1]} built in '
-                                           f'{job.seconds * 1e3:.0f} ms')
-                continue
-            if job.superseded:
-                continue
-            if job.error is not None:
+        """Executor thread: the map builds that ended, as ``MapRequests.route`` says."""
+        for job in self._maps.take_finished():
+            route = self._maps.route(job, self._cycle.active)
+            if route == 'size_failed':
+                self._stats['size_maps_failed'] += 1
+            elif route == 'failed':
                 self._calibration_failed(job)
-                continue
-            self._maps_build_ms = job.seconds * 1e3
-            if job.active.rectify_enabled:
-                self.get_logger().info(f'rectification maps of generation {job.active.generation} built '
-                                       f'in {job.seconds * 1e3:.0f} ms')
-            if job.active is not self._cycle.active:
+            elif route == 'swap_in':
                 self._swap_in(job)
 
     def _calibration_failed(self, job: MapJob):
@@ -757,9 +662,9 @@ class ZeroShotCalibNode(Node):
             self.get_logger().warning(text)
 
     def destroy_node(self):
-        builder = getattr(self, '_builder', None)
-        if builder is not None:
-            builder.stop()
+        maps = getattr(self, '_maps', None)
+        if maps is not None:
+            maps.stop()
         refinement = getattr(self, '_refinement', None)
         if refinement is not None:
             refinement.shutdown()

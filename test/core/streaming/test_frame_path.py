@@ -1,6 +1,7 @@
 """The node's frame path without DDS (core/streaming/frame_path.py): which frames get a
 CameraInfo and which are skipped with which reason, the serialized CameraInfo with each frame's
-stamp, the rectified image as serialized bytes, and which maps a frame may ask for."""
+stamp, the rectified image as serialized bytes (or as a message's pixels), and which maps a frame
+may ask for."""
 import numpy as np
 import pytest
 
@@ -109,6 +110,20 @@ def test_the_rectified_frame_is_a_serialized_image_with_the_frames_header(active
     expected = rectifier.rectify(np.frombuffer(raw, np.uint8, count=640 * 360,
                                                offset=len(raw) - 640 * 360).reshape(360, 640))
     assert np.array_equal(pixels, expected)
+
+
+def test_the_message_paths_rectified_pixels_are_one_buffer_reused_frame_after_frame(active):
+    rectified = ActiveCalibration(active.calibration, active.camera, 'spec', rectify=True, build_maps=True)
+    rectifier = rectified.rectifier_for(640, 360)
+    frames = FramePath(serialize_info)
+    bgr = (np.arange(640 * 360 * 3) % 253).astype(np.uint8)
+    data, height, width, step = frames.rectified_pixels(bgr.tobytes(), 640, 360, 640 * 3, 'bgr8', False, rectifier)
+    assert (height, width, step) == (360, 640, 640 * 3) and len(data) == 640 * 360 * 3
+    assert np.array_equal(np.frombuffer(data, np.uint8).reshape(360, 640, 3), rectifier.rectify(bgr.reshape(360, 640, 3)))
+    again = frames.rectified_pixels(bgr.tobytes(), 640, 360, 640 * 3, 'bgr8', False, rectifier)[0]
+    assert again is data  # rclpy serialises it during publish(): reused, not allocated per frame
+    mono16 = frames.rectified_pixels(bytes(640 * 360 * 2), 640, 360, 640 * 2, 'mono16', False, rectifier)
+    assert mono16[0] is not data and mono16[1:] == (360, 640, 640 * 2)
 
 
 def test_maps_of_another_size_beyond_the_budget_are_not_requested(active):

@@ -1,12 +1,16 @@
 """The node's frame path without ROS: a frame in -> its calibration (or why it is skipped), its
-serialized CameraInfo, its rectified image as serialized bytes; which maps a frame may ask for.
+serialized CameraInfo, its rectified image as serialized bytes (or as the pixels of a message);
+which maps a frame may ask for.
 
 The node (``zeroshot_calib_ros/ros/node.py``) takes the frame, counts and logs a ``FrameSkipped``
 (its ``reason`` is the ``frames_skipped_<reason>`` counter of /diagnostics) and publishes the bytes.
 """
 from __future__ import annotations
 
+import array
 from typing import Callable, Dict, Optional, Tuple
+
+import numpy as np
 
 from ..ros_formats.calibration_file import CameraCalibration
 from ..ros_formats.cdr_image import SerializedImage, patch_stamp, pixel_bytes
@@ -33,6 +37,7 @@ class FramePath:
         self.failed_maps: Dict[tuple, tuple] = {}
         self._info_templates = {}  # (id(calibration), frame_id) -> (calibration, serialized CameraInfo)
         self._rect_serialized = SerializedImage()  # image_rect, reused frame after frame
+        self._rect_pixels = None  # the message path's image_rect pixels, reused frame after frame
 
     def calibration(self, active: ActiveCalibration, width: int, height: int, step: int, encoding: str,
                     nbytes: int) -> CameraCalibration:
@@ -82,6 +87,20 @@ class FramePath:
                                             image.shape, image.dtype)
         rectifier.rectify(image, out=out)
         return self._rect_serialized.buffer
+
+    def rectified_pixels(self, data, width: int, height: int, step: int, encoding: str, is_bigendian: bool,
+                         rectifier) -> tuple:
+        """The message path's image_rect: a frame's pixels remapped into one buffer reused frame
+        after frame (an ``array('B')``, which rclpy takes as an Image's data as is and serialises
+        during publish(), so reuse is safe); returns (buffer, height, width, step)."""
+        image = image_array(data, width, height, step, encoding, is_bigendian)
+        nbytes = image.nbytes
+        if self._rect_pixels is None or len(self._rect_pixels) != nbytes:
+            self._rect_pixels = array.array('B', bytes(nbytes))
+        out = np.frombuffer(self._rect_pixels, dtype=image.dtype).reshape(image.shape)
+        rectifier.rectify(image, out=out)
+        out_step = image.shape[1] * (image.shape[2] if image.ndim == 3 else 1) * image.dtype.itemsize
+        return self._rect_pixels, image.shape[0], image.shape[1], out_step
 
     def ahead_sizes(self, active: ActiveCalibration, budget_bytes: int) -> list:
         """The sizes whose maps are built when image_rect gets a subscriber: the configured one and
