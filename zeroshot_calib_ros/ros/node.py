@@ -534,7 +534,7 @@ class ZeroShotCalibNode(Node):
 
     # --- changes at run time --------------------------------------------------------------
     def _on_set_parameters(self, parameters) -> SetParametersResult:
-        if self._reverting:  # restoring the values in force (see _on_calibration_built)
+        if self._reverting:  # restoring the values in force (see _calibration_failed)
             return SetParametersResult(successful=True)
         # A change is a change only where a value differs (ros2 param load of a dump, or set to
         # the value in force, changes nothing: a calibration from a file or set_camera_info stays)
