@@ -809,8 +809,8 @@ MUTANTS = [
         id='online-refiner-initial-camera-not-used-for-detection',
         file=f'{STREAMING}/online_refinement.py',
         old=("            camera = (self.initial.scaled(width, height) if self.initial is not None else\n"
-             "                      zero_shot_camera(self.spec, width, height, self.solution))"),
-        new="            camera = zero_shot_camera(self.spec, width, height, self.solution)",
+             "                      self.start.camera)"),
+        new="            camera = self.start.camera",
         behaviour='refine from an earlier refinement: lines are detected with that camera (scaled to the frames)',
         tests=['test/core/streaming/test_online_refinement.py::test_lines_are_detected_with_the_initial_camera_scaled_to_the_frames'],
     ),

@@ -421,7 +421,7 @@ class _Worker:
     """The worker's state: the spec, the current estimate and the curves of the newest frames."""
 
     def __init__(self, start: dict):
-        from ..estimation.refine import zero_shot_camera  # noqa: F401 (imports SciPy once, here)
+        from ..estimation.refine import refine_from_frames  # noqa: F401 (imports SciPy once, here)
         from ..zeroshot.solver import solve_zero_shot
         self.spec: CameraSpec = start['spec']
         self.tolerance = start['fov_tolerance_deg']
@@ -429,6 +429,7 @@ class _Worker:
         self.max_frames = max(1, int(start['max_frames']))
         self.finish_after = max(1, int(start.get('finish_after', FINISH_AFTER)))
         self.solution = solve_zero_shot(self.spec, 'auto')
+        self.start = None  # the spec's ZeroShotStart at the frames' size: made once per size
         self.frames = []  # each kept frame's _KeptFrame, oldest first
         self.count = 0
         self.size = None
@@ -443,7 +444,8 @@ class _Worker:
         self.since_offer = 0
 
     def frame(self, image: np.ndarray) -> dict:
-        from ..estimation.refine import refine_from_frames, zero_shot_camera
+        from ..estimation.refine import refine_from_frames
+        from ..estimation.zero_shot import zero_shot_start
         from ..lines.detect import detect_curves
         from ..lines.image_region import combine_circles, find_image_region
         import cv2
@@ -456,10 +458,12 @@ class _Worker:
                 raise ValueError(f'images are {width}x{height} but the spec is {spec.width}x{spec.height}: '
                                  'not the same aspect ratio')
             resized = self._follow_size(width, height)
+        if self.start is None or (self.start.width, self.start.height) != (width, height):
+            self.start = zero_shot_start(self.spec, width, height, self.tolerance, self.solution)
         camera = self.camera
         if camera is None:
             camera = (self.initial.scaled(width, height) if self.initial is not None else
-                      zero_shot_camera(self.spec, width, height, self.solution))
+                      self.start.camera)
         if self.offered is None and self.reference is not None:  # the calibration in force
             self.offered = (camera, self.reference)
         # as refine_from_images: the detector kept inside the image circle, the circle as evidence,
@@ -472,7 +476,7 @@ class _Worker:
         every = [c for frame in frames for c in frame.curves]
         start_from = self.offered[0] if self.offered else (camera if self.initial is not None else None)
         result = refine_from_frames(self.spec, every, {frame.image_id: frame.grey for frame in frames}, width, height,
-                                    self.tolerance, initial=start_from, solution=self.solution,
+                                    self.tolerance, initial=start_from, solution=self.start,
                                     image_circle=combine_circles([f.circle for f in frames]))
         self.camera, self.size, self.frames = camera, (width, height), frames  # the frame is evidence now
         self.count += 1
