@@ -17,6 +17,7 @@ from zeroshot_calib_ros.core.estimation.parameters import KannalaBrandtLayout
 from zeroshot_calib_ros.core.estimation.problem import Problem, robust_factor
 from zeroshot_calib_ros.core.estimation.refine import refine_camera, refine_from_images, zero_shot_camera
 from zeroshot_calib_ros.core.estimation.terms import FovTerm, PrincipalPointPrior
+from zeroshot_calib_ros.core.estimation.zero_shot import zero_shot_start
 from zeroshot_calib_ros.core.estimation.uncertainty import (covariance, pixel_grid, pixel_rms, systematic_covariance,
                                                             zero_shot_uncertainty, zoom_field)
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera, PinholeCamera
@@ -493,7 +494,7 @@ def test_zero_shot_error_bar_of_frames_at_another_size_is_in_their_pixels(factor
 
 def test_refine_from_images_makes_curves_again_under_the_refined_camera(monkeypatch):
     """refine_from_images: the edge points are looked for once per image, with zero-shot's camera
-    (where to look); the first round's curves are made of them under zero-shot's camera, the second
+    of the spec's FOVs rounded (where to look); the first round's curves are made of them under zero-shot's camera, the second
     round's of the same edge points under the camera the first fit gave, which also starts the
     second fit."""
     from zeroshot_calib_ros.core.estimation import refine as refine_module
@@ -519,8 +520,9 @@ def test_refine_from_images_makes_curves_again_under_the_refined_camera(monkeypa
     monkeypatch.setattr(detect_module, 'make_views', lambda camera: None)
     monkeypatch.setattr(refine_module, 'refine_camera', fit)
     refine_from_images(spec, [np.zeros((H, W), np.uint8)] * 2, rounds=2)
-    assert len(looked_with) == 2
-    assert all(np.allclose(c.K, zs.K) and np.allclose(c.D, zs.D) for c in looked_with)
+    assert len(looked_with) == 2  # with zero-shot's camera of the spec's FOVs rounded (where to look)
+    look = zero_shot_start(spec, W, H).detection_camera
+    assert all(np.allclose(c.K, look.K) and np.allclose(c.D, look.D) for c in looked_with)
     assert len(curves_under) == 4
     first, second = curves_under[:2], curves_under[2:]
     assert all(np.allclose(c.K, zs.K) and np.allclose(c.D, zs.D) for _, c, _ in first)

@@ -12,7 +12,8 @@ import pytest
 import scenes
 from zeroshot_calib_ros.core.estimation import zero_shot as zero_shot_module
 from zeroshot_calib_ros.core.estimation.refine import refine_camera, refine_from_images
-from zeroshot_calib_ros.core.estimation.zero_shot import ZeroShotStart, zero_shot_camera, zero_shot_start
+from zeroshot_calib_ros.core.estimation.zero_shot import (ZeroShotStart, rounded_fovs, zero_shot_camera,
+                                                          zero_shot_start)
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
 from zeroshot_calib_ros.core.lens.wide_fov import fields_of_view_through_axis
 from zeroshot_calib_ros.core.zeroshot import solver as solver_module
@@ -44,14 +45,47 @@ def test_one_refine_run_solves_the_spec_once(room):
     with solves_patch as solves, bars_patch as bars:
         result = refine_from_images(SPEC, [room], rounds=2, progress=lambda p: p.stage == 'fit' and fits.append(p))
     assert len(fits) == 2 and result.accepted, result.reason
-    assert solves.call_count == 1
+    assert solved_specs(solves) == [SPEC, rounded_fovs(SPEC)]  # the second: the camera the detector looks with
     assert bars.call_count == 1
     assert np.array_equal(result.zero_shot_camera.K, zero_shot_camera(SPEC, 640, 400).K)
     solution = solve_zero_shot(SPEC, 'auto')
     solves_patch, bars_patch = counting()
     with solves_patch as solves, bars_patch as bars:
         refine_from_images(SPEC, [np.full_like(room, 128)], solution=solution)
-    assert solves.call_count == 0 and bars.call_count == 1
+    assert solved_specs(solves) == [rounded_fovs(SPEC)] and bars.call_count == 1
+
+
+def solved_specs(solves):
+    return [call.args[0] if call.args else call.kwargs['spec'] for call in solves.call_args_list]
+
+
+def test_the_detector_looks_with_a_camera_that_ignores_the_last_digits_of_the_fovs():
+    """The views the detector makes follow the spec's FOVs rounded to whole degrees: specs 0.01
+    degree apart look with one camera (so find the same lines), which is within a few pixels of
+    each one's own zero-shot camera; a spec of whole degrees looks with its own camera."""
+    spec = CameraSpec(752, 480, hfov=121.4, vfov=76.3, dfov=146.8)
+    looks = []
+    for delta in (-0.01, 0.0, 0.01):
+        shifted = CameraSpec(752, 480, **{k: v + delta for k, v in spec.given().items()})
+        start = zero_shot_start(shifted, 752, 480)
+        look = start.detection_camera
+        assert look is start.detection_camera  # made once per start
+        looks.append(look)
+        pixels = np.stack(np.meshgrid(np.linspace(0, 752, 17), np.linspace(0, 480, 11)), -1).reshape(-1, 2)
+        moved = np.linalg.norm(look.project(start.camera.unproject(pixels)) - pixels, axis=1)
+        assert 0.05 < np.max(moved) < 4.0
+    for look in looks[1:]:
+        assert (look.fx, look.fy, look.cx, look.cy) == (looks[0].fx, looks[0].fy, looks[0].cx, looks[0].cy)
+        np.testing.assert_array_equal(look.D, looks[0].D)
+    whole = zero_shot_start(CameraSpec(752, 480, hfov=121, vfov=76), 752, 480)
+    assert whole.detection_camera is whole.camera
+
+
+def test_rounded_fovs_rounds_every_fov_and_keeps_the_rest():
+    spec = CameraSpec(1032, 778, circle_diameter=770.0, circle_fov=187.6)
+    assert rounded_fovs(spec) == CameraSpec(1032, 778, circle_diameter=770.0, circle_fov=188.0)
+    assert rounded_fovs(CameraSpec(640, 480, hfov=93.49, vfov=59.51, dfov=106.5)) == \
+        CameraSpec(640, 480, hfov=93.0, vfov=60.0, dfov=106.0)
 
 
 def test_a_start_is_used_as_it_is_and_checked():

@@ -13,6 +13,7 @@ import pytest
 from scenes import dense_rms, render
 from zeroshot_calib_ros.core import CameraSpec
 from zeroshot_calib_ros.core.estimation.refine import zero_shot_camera
+from zeroshot_calib_ros.core.estimation.zero_shot import zero_shot_start
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
 from zeroshot_calib_ros.core.lines.detect import detect_curves
 from zeroshot_calib_ros.core.lens.wide_fov import fields_of_view_through_axis
@@ -345,13 +346,14 @@ def test_refined_calibration_in_the_configured_plumb_bob_model():
     assert equidistant.distortion_model == 'equidistant' and error == 0.0
 
 
-def scripted_worker(monkeypatch, script, start=None):
-    """A _Worker whose line detection records the camera it detects with and whose fit answers
-    ``script`` ((uncertainty px, accepted) per frame, camera fx = zero-shot's + frame number)."""
+def scripted_worker(monkeypatch, script, start=None, looked_with=None, spec=SPEC):
+    """A _Worker whose line detection records the camera it makes curves under (and in
+    ``looked_with`` the one it looked for edges with) and whose fit answers ``script``
+    ((uncertainty px, accepted) per frame, camera fx = zero-shot's + frame number)."""
     from zeroshot_calib_ros.core.estimation import refine as refine_module
     from zeroshot_calib_ros.core.lines import detect as detect_module
     from zeroshot_calib_ros.core.streaming.online_refinement import _Worker
-    zs = zero_shot_camera(SPEC, 640, 360)
+    zs = zero_shot_camera(spec, 640, 360)
     answers, detected_with = iter(script), []
 
     def fit(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None):
@@ -360,12 +362,18 @@ def scripted_worker(monkeypatch, script, start=None):
         return refine_module.Refinement(camera, accepted, 'accepted' if accepted else 'too few lines', u, 3.0,
                                         0, 0, None, None, 0.0, 0.0, zero_shot_camera=zs)
 
-    def detect(image, camera, image_id=None, **kwargs):
+    def find(image, camera, **kwargs):
+        if looked_with is not None:
+            looked_with.append(camera)
+        return detect_module.EdgePoints((image.shape[1], image.shape[0]), [], dict(detect_module.DEFAULTS))
+
+    def curves(edges, camera, image_id=None):
         detected_with.append(camera)
         return []
     monkeypatch.setattr(refine_module, 'refine_camera', fit)
-    monkeypatch.setattr(detect_module, 'detect_curves', detect)
-    worker = _Worker({'spec': SPEC, 'fov_tolerance_deg': 1.0, 'initial': None, 'max_frames': 8,
+    monkeypatch.setattr(detect_module, 'find_edges', find)
+    monkeypatch.setattr(detect_module, 'curves_from_edges', curves)
+    worker = _Worker({'spec': spec, 'fov_tolerance_deg': 1.0, 'initial': None, 'max_frames': 8,
                       'finish_after': 16, **(start or {})})
     return worker, detected_with, zs
 
@@ -374,12 +382,18 @@ def test_lines_are_detected_with_the_camera_in_force(monkeypatch):
     """Detection looks where the camera in force puts the lines: zero-shot's until a camera is
     offered, then the newest offered camera (not zero-shot's again)."""
     script = [(None, False), (2.0, True), (1.9, True), (1.0, True), (None, False)]
-    worker, detected_with, zs = scripted_worker(monkeypatch, script)
+    looked_with, spec = [], CameraSpec(640, 360, hfov=172.3, vfov=96.8, dfov=198.2)
+    worker, detected_with, zs = scripted_worker(monkeypatch, script, looked_with=looked_with, spec=spec)
     black = np.zeros((360, 640), np.uint8)
     offered = [worker.frame(black)['camera'] for _ in script]
     assert [c is not None for c in offered] == [False, True, False, True, False]
     fx = [c.fx for c in detected_with]
     assert fx == [zs.fx, zs.fx, zs.fx + 2, zs.fx + 2, zs.fx + 4], fx  # frame 2's camera from frame 3 on, ...
+    # zero-shot's frames look for edges with its FOVs rounded (as refine_from_images), the others
+    # with the camera in force
+    look = zero_shot_start(spec, 640, 360).detection_camera
+    assert look.fx != zs.fx
+    assert [c.fx for c in looked_with] == [look.fx, look.fx, zs.fx + 2, zs.fx + 2, zs.fx + 4]
 
 
 def test_lines_are_detected_with_the_initial_camera_scaled_to_the_frames(monkeypatch):
@@ -504,10 +518,10 @@ def test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_ev
     spec = CameraSpec(640, 480, circle_diameter=2 * CIRCULAR.circle_radius, circle_fov=190.0)
     zs = zero_shot_camera(spec, 640, 480)
     detected, fits = [], []
-    real_detect = detect_module.detect_curves
+    real_curves = detect_module.curves_from_edges
 
     def detect(*args, **kwargs):
-        found = real_detect(*args, **kwargs)
+        found = real_curves(*args, **kwargs)
         detected.extend(found)
         return found
 
@@ -515,7 +529,7 @@ def test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_ev
         fits.append((list(curves), image_circle))
         return refine_module.Refinement(zs, False, 'too few lines', None, 3.0, 0, 0, None, None, 0.0, 0.0,
                                         zero_shot_camera=zs)
-    monkeypatch.setattr(detect_module, 'detect_curves', detect)
+    monkeypatch.setattr(detect_module, 'curves_from_edges', detect)
     monkeypatch.setattr(refine_module, 'refine_camera', fit)
     worker = _Worker({'spec': spec, 'fov_tolerance_deg': 1.0, 'initial': None, 'max_frames': 8, 'finish_after': 16})
     for scene, seed in (('room', 1), ('corridor', 1), ('corridor', 3)):

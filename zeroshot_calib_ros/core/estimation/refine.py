@@ -699,10 +699,11 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     edges = [None] * len(images)
     gradients = {}  # static_curves' image gradients, the same in every round
     for round_index in range(total_rounds):
-        # the edge points are looked for once, with zero-shot's camera; later rounds make curves
+        # the edge points are looked for once, with zero-shot's camera (its FOVs rounded:
+        # zero_shot.ZeroShotStart.detection_camera); later rounds make curves
         # of them under the refined camera (pieces straight under it, merged), which is where a
         # better camera changes the evidence: longer lines pass the straightness test and merge
-        views = make_views(camera) if round_index == 0 else None
+        views = make_views(start.detection_camera) if round_index == 0 else None
         curves = []
 
         def detected(done, camera=camera, round_index=round_index):
@@ -712,8 +713,9 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
 
         def detect(item, camera=camera, views=views):
             index, image = item
-            if edges[index] is None:
-                edges[index] = find_edges(image, camera, views=views, region=regions[index], **detect_options)
+            if edges[index] is None:  # looked for with the rounded camera, curves made under the exact one
+                edges[index] = find_edges(image, start.detection_camera, views=views, region=regions[index],
+                                          **detect_options)
             return curves_from_edges(edges[index], camera, image_id=index)
 
         if workers > 1 and len(images) > 1:

@@ -5,7 +5,7 @@ callback; it keeps at most one every ``interval`` seconds, and only while its wo
 The check is a comparison of two numbers; a frame that is not kept is not copied (a kept one is
 copied unless the caller says its buffer is immutable, as rclpy's serialized ``bytes`` are).
 
-Line detection (``core.lines.detect.detect_curves``) and the fit with its gate
+Line detection (``core.lines.detect.find_edges`` and ``curves_from_edges``) and the fit with its gate
 (``core.estimation.refine.refine_camera``) run in a **worker process** (``python -c`` running
 ``worker_main``) at nice ``WORKER_NICE`` and SCHED_IDLE with one OpenCV / BLAS thread: in the node's process
 even a low-priority thread would hold the GIL for most of a fit (tens of seconds of numpy and
@@ -446,7 +446,7 @@ class _Worker:
     def frame(self, image: np.ndarray) -> dict:
         from ..estimation.refine import refine_from_frames
         from ..estimation.zero_shot import zero_shot_start
-        from ..lines.detect import detect_curves
+        from ..lines.detect import curves_from_edges, find_edges
         from ..lines.image_region import combine_circles, find_image_region
         import cv2
         start = time.monotonic()
@@ -469,7 +469,11 @@ class _Worker:
         # as refine_from_images: the detector kept inside the image circle, the circle as evidence,
         # and what stays put from frame to frame (the robot's own body) left out
         region = find_image_region(image)
-        kept = _KeptFrame(self.count + 1, detect_curves(image, camera, image_id=self.count + 1, region=region),
+        # the zero-shot camera looks with its FOVs rounded (ZeroShotStart.detection_camera), so that
+        # the lines found do not hang on the spec's last digits; the curves are made under it exactly
+        look = self.start.detection_camera if camera is self.start.camera else camera
+        curves = curves_from_edges(find_edges(image, look, region=region), camera, image_id=self.count + 1)
+        kept = _KeptFrame(self.count + 1, curves,
                           image if image.ndim == 2 else cv2.cvtColor(image[..., :3], cv2.COLOR_BGR2GRAY),
                           region.circle)
         frames = (self.frames + [kept])[-self.max_frames:]
