@@ -1777,8 +1777,8 @@ MUTANTS = [
     dict(
         id='r6-refine-edges-of-the-first-image',
         file=f'{PKG}/core/estimation/refine.py',
-        old='edges[index] = find_edges(image, camera,',
-        new='edges[index] = find_edges(images[0], camera,',
+        old='edges[index] = find_edges(image, look,',
+        new='edges[index] = find_edges(images[0], look,',
         behaviour="refine_from_images: each image's curves are found in that image",
         tests=['test/core/estimation/test_refine.py::test_refine_from_images_detects_each_image_with_the_options_given',
                'test/core/lines/test_static_curves.py::test_refine_leaves_out_the_vehicle_body_seen_in_every_frame'],
@@ -1786,8 +1786,8 @@ MUTANTS = [
     dict(
         id='r6-refine-detect-options-dropped',
         file=f'{PKG}/core/estimation/refine.py',
-        old='find_edges(image, camera, views=views, region=regions[index], **detect_options)',
-        new='find_edges(image, camera, views=views, region=regions[index])',
+        old='find_edges(image, look, views=views, region=regions[index], **detect_options)',
+        new='find_edges(image, look, views=views, region=regions[index])',
         behaviour="refine_from_images(**detect_options): the detection options given (max_curves, tolerance_px, "
                   "...) are the detector's",
         tests=['test/core/estimation/test_refine.py::test_refine_from_images_detects_each_image_with_the_options_given'],
@@ -1795,8 +1795,8 @@ MUTANTS = [
     dict(
         id='r6-refine-region-ignored',
         file=f'{PKG}/core/estimation/refine.py',
-        old='find_edges(image, camera, views=views, region=regions[index], **detect_options)',
-        new='find_edges(image, camera, views=views, **detect_options)',
+        old='find_edges(image, look, views=views, region=regions[index], **detect_options)',
+        new='find_edges(image, look, views=views, **detect_options)',
         behaviour="refine_from_images(regions=...): each image is searched inside its own region only",
         tests=['test/core/lines/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
     ),
@@ -1918,6 +1918,51 @@ MUTANTS = [
         new='',
         behaviour='static_curves of curves all too short to judge keeps them all (no error)',
         tests=['test/core/lines/test_static_curves.py::test_curves_too_short_to_judge_are_kept_and_change_no_other_verdict'],
+    ),
+    # --- the detector's camera: the spec's FOVs rounded (gate stability) ----------------------
+    dict(
+        id='detection-camera-exact',
+        file=f'{PKG}/core/estimation/zero_shot.py',
+        old='            if rounded == self.spec:\n',
+        new='            if True:\n',
+        behaviour='refine: which lines are found does not hang on the last digits of the spec (the detector looks with '
+                  "the zero-shot camera of the spec's FOVs rounded to whole degrees)",
+        tests=['test/core/estimation/test_zero_shot.py::test_the_detector_looks_with_a_camera_that_ignores_the_last_digits_of_the_fovs',
+               'test/product/test_real_photos.py::test_a_hundredth_of_a_degree_on_the_spec_changes_neither_the_lines_nor_the_decision'],
+    ),
+    dict(
+        id='detection-camera-spec-size',
+        file=f'{PKG}/core/estimation/zero_shot.py',
+        old='            return zero_shot_camera(rounded, self.width, self.height)\n',
+        new='            return zero_shot_camera(rounded, self.spec.width, self.spec.height)\n',
+        behaviour="refine of images at another size than the spec's: the detector looks with a camera of the images' size",
+        tests=['test/core/estimation/test_zero_shot.py::test_the_detector_looks_with_a_camera_that_ignores_the_last_digits_of_the_fovs'],
+    ),
+    dict(
+        id='detection-camera-circle-fov-kept',
+        file=f'{PKG}/core/estimation/zero_shot.py',
+        old="        changes['circle_fov'] = step_deg * round(spec.circle_fov / step_deg)\n",
+        new='        pass\n',
+        behaviour="the circle form's FOV is rounded like the others for the detector's camera",
+        tests=['test/core/estimation/test_zero_shot.py::test_rounded_fovs_rounds_every_fov_and_keeps_the_rest'],
+    ),
+    dict(
+        id='detection-camera-used-for-curves',
+        file=f'{PKG}/core/estimation/refine.py',
+        old='            return curves_from_edges(edges[index], camera, image_id=index)\n',
+        new='            return curves_from_edges(edges[index], start.detection_camera if round_index == 0 else camera,\n'
+            '                                     image_id=index)\n',
+        behaviour='refine: the curves are made and fitted under the exact zero-shot camera; the rounded one only decides '
+                  'where to look',
+        tests=['test/core/estimation/test_refine.py::test_refine_from_images_makes_curves_again_under_the_refined_camera'],
+    ),
+    dict(
+        id='online-refiner-looks-with-exact-zero-shot',
+        file=f'{STREAMING}/online_refinement.py',
+        old='        look = self.start.detection_camera if camera is self.start.camera else camera\n',
+        new='        look = camera\n',
+        behaviour="the node's refine: zero-shot's frames are searched with the rounded camera, as the CLI's",
+        tests=['test/core/streaming/test_online_refinement.py::test_lines_are_detected_with_the_camera_in_force'],
     ),
     # --- what the CLI says besides the numbers (docs/cli_output.md) ------------------------------
     dict(

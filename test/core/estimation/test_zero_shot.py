@@ -79,6 +79,9 @@ def test_the_detector_looks_with_a_camera_that_ignores_the_last_digits_of_the_fo
         np.testing.assert_array_equal(look.D, looks[0].D)
     whole = zero_shot_start(CameraSpec(752, 480, hfov=121, vfov=76), 752, 480)
     assert whole.detection_camera is whole.camera
+    half = zero_shot_start(spec, 376, 240)  # images binned 2x2: the detector looks at their size
+    assert (half.detection_camera.width, half.detection_camera.height) == (376, 240)
+    assert half.detection_camera.fx == pytest.approx(looks[1].fx / 2, rel=1e-9)
 
 
 def test_rounded_fovs_rounds_every_fov_and_keeps_the_rest():

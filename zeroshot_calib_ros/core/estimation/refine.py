@@ -713,9 +713,9 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
 
         def detect(item, camera=camera, views=views):
             index, image = item
-            if edges[index] is None:  # looked for with the rounded camera, curves made under the exact one
-                edges[index] = find_edges(image, start.detection_camera, views=views, region=regions[index],
-                                          **detect_options)
+            if edges[index] is None:
+                look = start.detection_camera  # where to look; the curves are made under the exact camera
+                edges[index] = find_edges(image, look, views=views, region=regions[index], **detect_options)
             return curves_from_edges(edges[index], camera, image_id=index)
 
         if workers > 1 and len(images) > 1:
