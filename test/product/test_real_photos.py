@@ -49,9 +49,9 @@ def test_refinement_of_a_real_office_photo_is_never_worse_than_zero_shot(cameras
     """One real office photo (a board, desks, shelves, floor tiles) of a 121 x 76 degree camera
     with h + v + d from its published calibration: the camera refine returns is no more than
     0.3 px (at 1920) worse than zero-shot, and where it was accepted it is closer than zero-shot.
-    Measured (benchmarks/results/real_photos.md): left 6.81 -> 1.82 px (4.51 with OpenCV 4.6), right
-    refused (1.93 px kept; with OpenCV 4.6 the gate had accepted a camera 1.0 px worse before the
-    systematic floor followed the lines' noise)."""
+    Measured (benchmarks/results/real_photos.md): left 6.81 -> 1.68 px, right refused (1.93 px kept;
+    with OpenCV 4.6 the gate had accepted a camera 1.0 px worse before the systematic floor followed
+    the lines' noise)."""
     run = real_photos.run_camera(cameras[f'mynteye_s_jpl_{side}'], images=1)
     assert run['returned_px'] <= run['zero_shot_px'] + real_photos.WORSE_PX, run
     if run['accepted']:
