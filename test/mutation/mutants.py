@@ -1964,6 +1964,34 @@ MUTANTS = [
         behaviour="the node's refine: zero-shot's frames are searched with the rounded camera, as the CLI's",
         tests=['test/core/streaming/test_online_refinement.py::test_lines_are_detected_with_the_camera_in_force'],
     ),
+    dict(
+        id='detection-camera-fallback-never-taken',
+        file=f'{PKG}/core/estimation/zero_shot.py',
+        old='        except (SpecError, NoConvergence, ValueError):\n            return self.camera\n',
+        new='        except (SpecError, NoConvergence, ValueError):\n            raise\n',
+        behaviour="refine of a spec whose FOVs rounded to whole degrees are no valid spec (dfov 190.4 over hfov "
+                  "190.2) runs, looking with the spec's own zero-shot camera",
+        tests=['test/core/estimation/test_zero_shot.py::test_a_spec_whose_rounded_fovs_are_no_spec_refines_looking_with_its_own_camera'],
+    ),
+    dict(
+        id='detection-camera-fallback-misses-spec-error',
+        file=f'{PKG}/core/estimation/zero_shot.py',
+        old='        except (SpecError, NoConvergence, ValueError):\n',
+        new='        except NoConvergence:\n',
+        behaviour="refine of a spec whose FOVs rounded to whole degrees are no valid spec runs (the rounded spec's "
+                  "SpecError is not the user's)",
+        tests=['test/core/estimation/test_zero_shot.py::test_a_spec_whose_rounded_fovs_are_no_spec_refines_looking_with_its_own_camera'],
+    ),
+    dict(
+        id='detection-camera-fallback-at-spec-size',
+        file=f'{PKG}/core/estimation/zero_shot.py',
+        old='        except (SpecError, NoConvergence, ValueError):\n            return self.camera\n',
+        new='        except (SpecError, NoConvergence, ValueError):\n'
+            '            return zero_shot_camera(self.spec, self.spec.width, self.spec.height, self.solution)\n',
+        behaviour="refine of binned images (another size than the spec's) of a spec whose rounded FOVs are no spec: "
+                  "the detector looks with the zero-shot camera at the images' size",
+        tests=['test/core/estimation/test_zero_shot.py::test_a_spec_whose_rounded_fovs_are_no_spec_refines_looking_with_its_own_camera'],
+    ),
     # --- what the CLI says besides the numbers (docs/cli_output.md) ------------------------------
     dict(
         id='cli-refine-refused-exits-0',

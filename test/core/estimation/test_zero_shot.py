@@ -18,7 +18,7 @@ from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
 from zeroshot_calib_ros.core.lens.wide_fov import fields_of_view_through_axis
 from zeroshot_calib_ros.core.zeroshot import solver as solver_module
 from zeroshot_calib_ros.core.zeroshot.solver import solve_zero_shot
-from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
+from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec, SpecError
 
 CAMERA = KannalaBrandtCamera(430.0, 430.0, 654.0, 391.0, 1280, 800, [0.035, -0.012, 0.003, -0.0004]).scaled(640, 400)
 SPEC = CameraSpec(640, 400, **{k: round(v + 0.7, 1) for k, v in fields_of_view_through_axis(CAMERA).items()})
@@ -89,6 +89,22 @@ def test_rounded_fovs_rounds_every_fov_and_keeps_the_rest():
     assert rounded_fovs(spec) == CameraSpec(1032, 778, circle_diameter=770.0, circle_fov=188.0)
     assert rounded_fovs(CameraSpec(640, 480, hfov=93.49, vfov=59.51, dfov=106.5)) == \
         CameraSpec(640, 480, hfov=93.0, vfov=60.0, dfov=106.0)
+
+
+@pytest.mark.parametrize('width, height', [(640, 480), (320, 240)])
+def test_a_spec_whose_rounded_fovs_are_no_spec_refines_looking_with_its_own_camera(width, height):
+    """A spec valid as given whose FOVs rounded to whole degrees are not (a fisheye cropped at the
+    sides: its dfov 0.2 degree over its hfov, both round to 190, and the diagonal must be the
+    widest) is refined, not refused: the detector looks with the spec's own zero-shot camera, at
+    the images' size (full or binned 2x2)."""
+    spec = CameraSpec(640, 480, hfov=190.2, vfov=150.0, dfov=190.4)
+    with pytest.raises(SpecError):
+        rounded_fovs(spec)
+    start = zero_shot_start(spec, width, height)
+    assert start.detection_camera is start.camera
+    assert (start.detection_camera.width, start.detection_camera.height) == (width, height)
+    result = refine_from_images(spec, [np.full((height, width), 128, np.uint8)])
+    assert not result.accepted and result.zero_shot_camera.width == width
 
 
 def test_a_start_is_used_as_it_is_and_checked():
