@@ -665,3 +665,40 @@ def test_straightness_residuals_remembered_are_those_computed():
     import pickle
     copy = pickle.loads(pickle.dumps(term))
     assert np.array_equal(copy.point_residuals(camera), whole, equal_nan=True)
+
+
+def test_the_fit_runs_openblas_in_one_thread_and_gives_the_threads_back():
+    """refine's fits run every OpenBLAS in one thread (threads waiting for busy cores made each SVD
+    of the Jacobian ten times slower); nested and overlapping blocks keep it at one until the
+    last ends, which restores what the process had."""
+    import threading
+    from zeroshot_calib_ros.core.estimation.problem import one_blas_thread, openblas_thread_controls
+    blas = np.show_config(mode='dicts')['Build Dependencies']['blas']['name'].lower()
+    controls = openblas_thread_controls()
+    if 'openblas' in blas:
+        assert controls, 'numpy uses OpenBLAS, but no OpenBLAS thread control was found'
+    if not controls:
+        pytest.skip('no OpenBLAS in this process')
+    before = [get() for get, _ in controls]
+    try:
+        for _, put in controls:
+            put(3)
+        entered, leave = threading.Event(), threading.Event()
+
+        def other_fit():
+            with one_blas_thread():
+                entered.set()
+                leave.wait(10)
+
+        with one_blas_thread():
+            assert [get() for get, _ in controls] == [1] * len(controls)
+            worker = threading.Thread(target=other_fit)
+            worker.start()
+            assert entered.wait(10)
+        assert [get() for get, _ in controls] == [1] * len(controls)  # the other fit still runs
+        leave.set()
+        worker.join(10)
+        assert [get() for get, _ in controls] == [3] * len(controls)
+    finally:
+        for (_, put), count in zip(controls, before):
+            put(count)

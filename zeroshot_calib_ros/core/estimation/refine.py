@@ -56,7 +56,7 @@ from ..lens.models import KannalaBrandtCamera
 from ..lines.straightness import StraightnessTerm, curve_image, curve_points
 from ..zeroshot.spec import CameraSpec
 from .fit import SOLVE_TOL, LineFit, fit_lines
-from .problem import Problem, jacobian_threads
+from .problem import Problem, jacobian_threads, one_blas_thread
 from .terms import FOV_TOLERANCE_DEG, SHAPE_SIGMA, FovTerm, ImageCircleTerm, PrincipalPointPrior, ShapePrior
 from .uncertainty import (Uncertainty, displacement, image_circle_radius, pixel_grid, probability_other_is_better,
                           problem_uncertainty)
@@ -639,11 +639,14 @@ def refine_from_frames(spec: CameraSpec, curves: Sequence, images, width: int, h
     dirt) left out of the fit and listed in ``Refinement.static_curves``. ``images``: the frames,
     indexed by the curves' ``image``. What ``refine_from_images`` and the node's refine worker
     both fit. ``solution``: as ``refine_camera``'s. ``gradients``: a dict kept across calls on
-    the same ``images`` (``static_curves``': their gradients computed once)."""
+    the same ``images`` (``static_curves``': their gradients computed once). The fit's BLAS calls run
+    in one thread (``problem.one_blas_thread``: the same numbers, without OpenBLAS's threads
+    waiting for busy cores)."""
     from ..lines.static_curves import static_curves
     static = static_curves(curves, images, gradients)
-    result = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,
-                           fov_tolerance_deg, initial=initial, solution=solution, image_circle=image_circle)
+    with one_blas_thread():
+        result = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,
+                               fov_tolerance_deg, initial=initial, solution=solution, image_circle=image_circle)
     result.static_curves = [c for c, s in zip(curves, static) if s]
     return result
 
