@@ -490,15 +490,28 @@ def _fit_plane_fast(rays):
 
 
 def _group_median(values: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
-    """Median of ``values`` per group id (0..n_groups-1); NaN for an empty group."""
-    order = np.lexsort((values, group))
-    v, g = values[order], group[order]
-    counts = np.bincount(g, minlength=n_groups)
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    """Median of ``values`` per group id (0..n_groups-1); NaN for an empty group (a NaN value
+    sorts last, as in ``np.sort``). Only the middle values of each group's sorted values are
+    needed, not a sort of all values by (group, value): when the groups are runs, as the points of
+    a view's segments are, each run is one row of a NaN-padded array sorted along its rows;
+    otherwise the values are sorted and then, stably, their groups."""
+    n = len(values)
+    counts = np.bincount(group, minlength=n_groups)
+    start = np.cumsum(counts) - counts
+    width = int(counts.max()) if n else 0
+    if n and n_groups * width <= 4 * n + 1024 and bool((group[1:] >= group[:-1]).all()):
+        rows = np.full((n_groups, width), np.nan)
+        rows[group, np.arange(n) - start[group]] = values
+        rows.sort(axis=1)
+        v, first = rows.ravel(), np.arange(n_groups) * width
+    else:
+        order = np.argsort(values)
+        g = group[order]
+        v, first = values[order[np.argsort(g.astype(np.int16) if n_groups <= 32767 else g, kind='stable')]], start
     out = np.full(n_groups, np.nan)
     has = counts > 0
-    lo = start[has] + (counts[has] - 1) // 2
-    hi = start[has] + counts[has] // 2
+    lo = first[has] + (counts[has] - 1) // 2
+    hi = first[has] + counts[has] // 2
     out[has] = 0.5 * (v[lo] + v[hi])
     return out
 
@@ -513,11 +526,15 @@ def _make_pieces(points, rays, jac, grad, seg, view_index, opts) -> List[_Piece]
     if n_seg == 0:
         return []
     active = np.ones(len(points), bool)
-    outer = rays[:, :, None] * rays[:, None, :]
+    # the six distinct products of each ray's outer product, summed per segment in the order of
+    # the points (bincount adds as np.add.at does: the same sums)
+    products = [(i, j, rays[:, i] * rays[:, j]) for i in range(3) for j in range(i, 3)]
     for it in range(5):
-        counts = np.bincount(seg[active], minlength=n_seg)
-        S = np.zeros((n_seg, 3, 3))
-        np.add.at(S, seg[active], outer[active])
+        in_seg = seg[active]
+        counts = np.bincount(in_seg, minlength=n_seg)
+        S = np.empty((n_seg, 3, 3))
+        for i, j, product in products:
+            S[:, i, j] = S[:, j, i] = np.bincount(in_seg, weights=product[active], minlength=n_seg)
         S[counts < 3] = np.eye(3)
         normals = np.linalg.eigh(S)[1][:, :, 0]
         res, speed = _approx_residual_px(rays, jac, normals[seg], per_point=True)
@@ -607,7 +624,7 @@ class _Cluster:
     def _set(self, points, rays, jac, strength, normal):
         self.normal = normal
         e1, e2 = _basis(normal)
-        m = rays.mean(axis=0)
+        m = np.add.reduce(rays, axis=0) / len(rays)  # rays.mean(axis=0), the same numbers
         self.centre = math.atan2(m @ e2, m @ e1)
         self.e1, self.e2 = e1, e2
         phi = self.angles(rays)
@@ -627,37 +644,65 @@ class _Cluster:
 
 
 def _rms(x):
-    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else math.inf
+    # np.mean's sum and division, without its generic machinery (the same number)
+    return math.sqrt(np.add.reduce(np.square(x)) / len(x)) if len(x) else math.inf
 
 
 NEAREST_BRUTE_PAIRS = 4096
-"""Below this many point pairs the nearest distances are found by brute force (a k-d tree's
-construction costs more than it saves); above, by a k-d tree. Both give the same distances."""
+"""Below this many point pairs the nearest distances are found by brute force (every pair); above,
+by a sweep along one axis (``_nearest_distances``). Both give the same distances."""
 
 
 def _nearest_distances(mine: np.ndarray, theirs: np.ndarray) -> np.ndarray:
-    """The distance of each point of ``mine`` to its nearest point of ``theirs``."""
-    if len(mine) * len(theirs) <= NEAREST_BRUTE_PAIRS:
+    """The distance of each point of ``mine`` to its nearest point of ``theirs``.
+
+    Large sets by a sweep: ``theirs`` sorted along the axis it spreads over most; each point of
+    ``mine`` is first measured to its two neighbours in that order (a distance the nearest point
+    cannot exceed), then to every point of ``theirs`` within that distance along the axis (a point
+    farther along the axis is farther away). Every distance is the same sum of the squared
+    coordinate differences as brute force computes, so the two give the same numbers."""
+    n = len(theirs)
+    if len(mine) * n <= NEAREST_BRUTE_PAIRS or n < 2:
         return np.sqrt(np.min(np.sum((mine[:, None, :] - theirs[None, :, :]) ** 2, axis=2), axis=1))
-    from scipy.spatial import cKDTree  # scipy is a core dependency; imported where a tree pays
-    return cKDTree(theirs).query(mine)[0]
+    tx, ty = theirs[:, 0], theirs[:, 1]
+    mx, my = mine[:, 0], mine[:, 1]
+    if tx.max() - tx.min() < ty.max() - ty.min():
+        tx, ty, mx, my = ty, tx, my, mx
+    order = np.argsort(tx, kind='stable')
+    tx, ty = tx[order], ty[order]
+    pos = np.searchsorted(tx, mx)
+    np.clip(pos, 1, n - 1, out=pos)
+    bound = np.minimum((mx - tx[pos - 1]) ** 2 + (my - ty[pos - 1]) ** 2, (mx - tx[pos]) ** 2 + (my - ty[pos]) ** 2)
+    reach = np.sqrt(bound) * (1.0 + 1e-9) + 1e-9   # a margin over the rounding of the differences
+    lo = np.searchsorted(tx, mx - reach, 'left')
+    counts = np.maximum(np.searchsorted(tx, mx + reach, 'right') - lo, 1)
+    ends = np.cumsum(counts)
+    starts = ends - counts
+    rows = np.repeat(np.arange(len(mx)), counts)
+    cols = np.minimum(np.arange(ends[-1]) - np.repeat(starts - lo, counts), n - 1)
+    return np.sqrt(np.minimum.reduceat((mx[rows] - tx[cols]) ** 2 + (my[rows] - ty[cols]) ** 2, starts))
 
 
-def _try_merge(cl: _Cluster, piece: _Piece, opts):
-    """(local RMS, joint normal) when ``piece`` continues or duplicates ``cl``, else None."""
+def _try_merge(cl: _Cluster, piece: _Piece, opts, beat: float = math.inf):
+    """(local RMS, joint normal) when ``piece`` continues or duplicates ``cl``, else None; also
+    None, without the joint fit, when the local RMS is not below ``beat`` (the best found so far
+    for this piece: this cluster cannot be the better choice)."""
     phi = cl.angles(piece.rays)
-    lo, hi = max(phi.min(), cl.phi[0]), min(phi.max(), cl.phi[-1])
+    pmin, pmax = phi.min(), phi.max()
+    first, last = cl.phi[0], cl.phi[-1]
+    lo, hi = max(pmin, first), min(pmax, last)
     local_tol = max(opts['junction_px'], 1.5 * max(cl.rms, piece.rms))
     if hi > lo:
         # overlapping spans: the same edge seen twice (or two edges side by side)
         mine = piece.points[(phi >= lo) & (phi <= hi)]
-        theirs = cl.points[(cl.phi >= lo) & (cl.phi <= hi)]
+        # the cluster's angles are sorted: its points within [lo, hi] are one run
+        theirs = cl.points[np.searchsorted(cl.phi, lo, 'left'):np.searchsorted(cl.phi, hi, 'right')]
         if len(mine) == 0 or len(theirs) == 0:
             return None
         local = _median(_nearest_distances(mine, theirs))
-        if local > opts['duplicate_px']:
+        if local > opts['duplicate_px'] or not local < beat:
             return None
-        if phi.min() >= cl.phi[0] and phi.max() <= cl.phi[-1]:
+        if pmin >= first and pmax <= last:
             return local, cl.normal  # inside the cluster's span: nothing new to check
     else:
         gap = lo - hi
@@ -665,12 +710,12 @@ def _try_merge(cl: _Cluster, piece: _Piece, opts):
             return None
         # across the gap, the longer of the two (the cluster's end near the junction, or the
         # piece) extended along its great circle passes through the other
-        width = max(phi.max() - phi.min(), gap, math.radians(2.0))
-        if phi.min() >= cl.phi[-1]:
-            near = cl.phi >= cl.phi[-1] - width
+        width = max(pmax - pmin, gap, math.radians(2.0))
+        if pmin >= last:
+            near = cl.phi >= last - width
             gap_px = math.hypot(*(piece.points[np.argmin(phi)] - cl.points[-1]))
         else:
-            near = cl.phi <= cl.phi[0] + width
+            near = cl.phi <= first + width
             gap_px = math.hypot(*(piece.points[np.argmax(phi)] - cl.points[0]))
         if near.sum() < opts['min_points']:
             near = np.ones(len(cl.phi), bool)
@@ -684,7 +729,7 @@ def _try_merge(cl: _Cluster, piece: _Piece, opts):
         else:
             res, _ = _approx_residual_px(cl.rays[near], cl.jac[near], piece.normal)
         local = _rms(res)
-        if not local <= local_tol + opts['tolerance_per_px'] * gap_px:
+        if not local <= local_tol + opts['tolerance_per_px'] * gap_px or not local < beat:
             return None
     rays = np.concatenate([cl.rays, piece.rays])
     normal = _fit_plane_fast(rays)
@@ -727,7 +772,7 @@ def _merge(camera: CameraModel, pieces: List[_Piece], opts) -> List[_Cluster]:
                               -overlap <= gap_max)
                 cand = cand[ok]
             for k in cand:
-                found = _try_merge(clusters[k], piece, opts)
+                found = _try_merge(clusters[k], piece, opts, best_local)
                 if found is not None and found[0] < best_local:
                     best, (best_local, best_normal) = k, found
                     if best_local < 0.5 * opts['duplicate_px']:
