@@ -547,3 +547,14 @@ def test_group_medians_are_numpys_medians_per_group():
             np.testing.assert_array_equal(expected, [np.median(values[group == g]) if (group == g).any() else np.nan
                                                      for g in range(n_groups)])
         np.testing.assert_array_equal(_group_median(values, group, n_groups), expected)
+
+
+def test_views_made_in_threads_are_the_views_made_in_one(kb_views):
+    """refine makes the views in its workers' threads: the same views, in the same order, with the
+    same maps (the detector then sees the same pixels)."""
+    threaded = make_views(KB, workers=2)
+    assert [v.index for v in threaded.views] == list(range(len(kb_views.views))) and len(threaded) == len(kb_views)
+    for one, many in zip(kb_views.views, threaded.views):
+        assert (one.f, one.size, one.scale, one.off_axis_deg) == (many.f, many.size, many.scale, many.off_axis_deg)
+        for name in ('R', 'direction', 'map_x', 'map_y', 'inside'):
+            np.testing.assert_array_equal(getattr(one, name), getattr(many, name))

@@ -682,6 +682,7 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     passed to every round's fit."""
     from ..lines.detect import curves_from_edges, find_edges, make_views
     from ..lines.image_region import combine_circles, find_image_region
+    from ..lines.static_curves import image_gradients
     images = list(images)
     if not images:
         raise ValueError('no images given')
@@ -705,7 +706,7 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
         # the edge points are looked for once, with zero-shot's camera; later rounds make curves
         # of them under the refined camera (pieces straight under it, merged), which is where a
         # better camera changes the evidence: longer lines pass the straightness test and merge
-        views = make_views(camera) if round_index == 0 else None
+        views = make_views(camera, workers=workers) if round_index == 0 else None
         curves = []
 
         def detected(done, camera=camera, round_index=round_index):
@@ -717,6 +718,10 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
             index, image = item
             if edges[index] is None:
                 edges[index] = find_edges(image, camera, views=views, region=regions[index], **detect_options)
+                if len(images) > 1:
+                    # static_curves' gradients of this image, made here: in the workers' threads,
+                    # beside another image's detection, instead of after all of them
+                    gradients[index] = image_gradients(image)
             return curves_from_edges(edges[index], camera, image_id=index)
 
         if workers > 1 and len(images) > 1:

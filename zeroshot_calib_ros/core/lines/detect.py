@@ -168,14 +168,16 @@ def _max_angle(camera: CameraModel) -> float:
 
 
 def make_views(camera: CameraModel, half_fov_deg: float = 36.0, max_view_px: int = 640,
-               min_inside: float = 0.12) -> ViewSet:
+               min_inside: float = 0.12, workers: int = 1) -> ViewSet:
     """Pinhole views of ``camera`` covering its field of view.
 
     Square views of half-FOV ``half_fov_deg`` (edge to centre): one along the axis, then rings
     every 1.3 half-FOVs off-axis (as many views per ring as keep neighbours overlapping) up to
     the image's widest ray (beyond 90 degrees for a lens that sees that far). Each view's focal
     length matches the raw image's resolution near its centre, at most ``max_view_px`` wide.
-    Views whose pixels fall mostly outside the image (``min_inside``) are left out."""
+    Views whose pixels fall mostly outside the image (``min_inside``) are left out. ``workers``
+    > 1: the views are made in that many threads (OpenCV and numpy release the GIL over the maps;
+    each view is made alone, so they are the same views)."""
     beta = math.radians(half_fov_deg)
     theta_max = _max_angle(camera)
     limit = getattr(camera, 'theta_max', None)
@@ -190,46 +192,60 @@ def make_views(camera: CameraModel, half_fov_deg: float = 36.0, max_view_px: int
             directions.append(np.array([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi),
                                         math.cos(theta)]))
         theta += step
+    if workers > 1 and len(directions) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            made = list(pool.map(lambda d: _make_view(camera, d, beta, max_view_px, min_inside, limit), directions))
+    else:
+        made = [_make_view(camera, d, beta, max_view_px, min_inside, limit) for d in directions]
     views = []
-    w, h = camera.width, camera.height
-    for d in directions:
-        density = _local_density(camera, d)
-        if not math.isfinite(density) or density <= 0:
-            continue
-        native = 2 * density * math.tan(beta)
-        size = int(min(max_view_px, max(64, round(native))))
-        f = (size / 2) / math.tan(beta)
-        R = _view_rotation(d)
-        c = (size - 1) / 2.0
-        # the maps only make the image the segment detector looks at (points are mapped back
-        # exactly, through the view's rays): computed every 4th pixel and interpolated
-        step = 4
-        g = np.arange(0, size + step, step, dtype=float)
-        xx, yy = np.meshgrid(g, g)
-        v = np.stack([(xx - c) / f, (yy - c) / f, np.ones_like(xx)], axis=-1) @ R.T
-        with np.errstate(invalid='ignore'):
-            raw = camera.project(v)
-            ok = np.isfinite(raw).all(axis=-1)
-            if limit is not None and math.isfinite(limit):
-                ok &= np.arctan2(np.linalg.norm(v[..., :2], axis=-1), v[..., 2]) <= limit
-        mx_c = np.where(ok, raw[..., 0], -1e4).astype(np.float32)
-        my_c = np.where(ok, raw[..., 1], -1e4).astype(np.float32)
-        full = np.arange(size, dtype=np.float32) / step
-        fx, fy = np.meshgrid(full, full)
-        mx = cv2.remap(mx_c, fx, fy, cv2.INTER_LINEAR)
-        my = cv2.remap(my_c, fx, fy, cv2.INTER_LINEAR)
-        inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
-        circle = getattr(camera, 'circle_radius', None)
-        if circle is not None and math.isfinite(circle):
-            inside &= np.hypot(mx - camera.cx, my - camera.cy) <= circle
-        if inside.mean() < min_inside:
-            continue
-        # outside the image: repeat the nearest inside pixel (no artificial edge for the detector)
-        mx = np.clip(mx, 0, w - 1) if inside.all() else _fill_outside(mx, inside, w)
-        my = np.clip(my, 0, h - 1) if inside.all() else _fill_outside(my, inside, h)
-        views.append(View(len(views), R, f, size, d, math.degrees(math.acos(max(-1.0, min(1.0, d[2])))),
-                          size / native, mx.astype(np.float32), my.astype(np.float32), inside))
+    for view in made:
+        if view is not None:
+            view.index = len(views)
+            views.append(view)
     return ViewSet(camera, views, half_fov_deg)
+
+
+def _make_view(camera: CameraModel, d: np.ndarray, beta: float, max_view_px: int, min_inside: float,
+               limit) -> Optional[View]:
+    """One view of ``make_views`` along direction ``d`` (its index set by the caller), or None."""
+    w, h = camera.width, camera.height
+    density = _local_density(camera, d)
+    if not math.isfinite(density) or density <= 0:
+        return None
+    native = 2 * density * math.tan(beta)
+    size = int(min(max_view_px, max(64, round(native))))
+    f = (size / 2) / math.tan(beta)
+    R = _view_rotation(d)
+    c = (size - 1) / 2.0
+    # the maps only make the image the segment detector looks at (points are mapped back
+    # exactly, through the view's rays): computed every 4th pixel and interpolated
+    step = 4
+    g = np.arange(0, size + step, step, dtype=float)
+    xx, yy = np.meshgrid(g, g)
+    v = np.stack([(xx - c) / f, (yy - c) / f, np.ones_like(xx)], axis=-1) @ R.T
+    with np.errstate(invalid='ignore'):
+        raw = camera.project(v)
+        ok = np.isfinite(raw).all(axis=-1)
+        if limit is not None and math.isfinite(limit):
+            ok &= np.arctan2(np.linalg.norm(v[..., :2], axis=-1), v[..., 2]) <= limit
+    mx_c = np.where(ok, raw[..., 0], -1e4).astype(np.float32)
+    my_c = np.where(ok, raw[..., 1], -1e4).astype(np.float32)
+    full = np.arange(size, dtype=np.float32) / step
+    fx, fy = np.meshgrid(full, full)
+    mx = cv2.remap(mx_c, fx, fy, cv2.INTER_LINEAR)
+    my = cv2.remap(my_c, fx, fy, cv2.INTER_LINEAR)
+    inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
+    circle = getattr(camera, 'circle_radius', None)
+    if circle is not None and math.isfinite(circle):
+        inside &= np.hypot(mx - camera.cx, my - camera.cy) <= circle
+    if inside.mean() < min_inside:
+        return None
+    # outside the image: repeat the nearest inside pixel (no artificial edge for the detector)
+    mx = np.clip(mx, 0, w - 1) if inside.all() else _fill_outside(mx, inside, w)
+    my = np.clip(my, 0, h - 1) if inside.all() else _fill_outside(my, inside, h)
+    return View(-1, R, f, size, d, math.degrees(math.acos(max(-1.0, min(1.0, d[2])))),
+                size / native, mx.astype(np.float32), my.astype(np.float32), inside)
 
 
 _VIEW_CACHE: list = []   # [(key, ViewSet)], the few most recent cameras
