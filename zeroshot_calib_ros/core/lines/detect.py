@@ -495,9 +495,11 @@ def _approx_residual_px(rays, jac, normal, per_point=False):
     else:
         a = rays @ normal
         perp = normal[None, :] - a[:, None] * rays
-    perp /= np.maximum(np.linalg.norm(perp, axis=1, keepdims=True), 1e-12)
-    speed = np.linalg.norm(np.einsum('nij,nj->ni', jac, perp), axis=1)
-    return np.arcsin(np.clip(a, -1.0, 1.0)) * speed, speed
+    # np.linalg.norm's and np.clip's arithmetic, without their Python wrappers (the same numbers)
+    perp /= np.maximum(np.sqrt(np.add.reduce(perp * perp, axis=1, keepdims=True)), 1e-12)
+    motion = np.einsum('nij,nj->ni', jac, perp)
+    speed = np.sqrt(np.add.reduce(motion * motion, axis=1))
+    return np.arcsin(np.minimum(np.maximum(a, -1.0), 1.0)) * speed, speed
 
 
 def _fit_plane_fast(rays):
@@ -623,7 +625,7 @@ def _pieces(camera: CameraModel, edges: EdgePoints, opts) -> List[_Piece]:
 def _basis(normal):
     ref = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     e1 = ref - (ref @ normal) * normal
-    e1 /= np.linalg.norm(e1)
+    e1 /= math.sqrt(e1.dot(e1))  # np.linalg.norm's arithmetic, without its wrapper
     e2 = np.array([normal[1] * e1[2] - normal[2] * e1[1], normal[2] * e1[0] - normal[0] * e1[2],
                    normal[0] * e1[1] - normal[1] * e1[0]])
     return e1, e2
@@ -775,11 +777,12 @@ def _merge(camera: CameraModel, pieces: List[_Piece], opts) -> List[_Cluster]:
         if c:
             # cheap tests first: plane normals close; the piece's ends and middle near the plane;
             # spans along the great circle overlapping or close
-            probe = piece.rays[[0, len(piece.rays) // 2, -1]]
             cand = np.nonzero(np.abs(N[:c] @ piece.normal) >= cos_max)[0]
             if cand.size:
-                off = np.max(np.abs(N[cand] @ probe.T), axis=1) * piece.density
-                cand, off = cand[off <= opts['merge_tolerance_px']], off[off <= opts['merge_tolerance_px']]
+                probe = piece.rays[[0, len(piece.rays) // 2, -1]]
+                off = np.abs(N[cand] @ probe.T).max(axis=1) * piece.density
+                near = off <= opts['merge_tolerance_px']
+                cand, off = cand[near], off[near]
             if cand.size:
                 phi = np.arctan2(piece.rays @ E2[cand].T, piece.rays @ E1[cand].T) - Cc[None, cand]
                 phi = np.mod(phi + np.pi, 2 * np.pi) - np.pi
@@ -826,16 +829,22 @@ def _thin(pts: np.ndarray, min_d: float) -> np.ndarray:
 
 def _finish(camera: CameraModel, cl: _Cluster, image: ImageId, opts) -> Optional[Curve]:
     pts, rays, phi, strength = cl.points, cl.rays, cl.phi, cl.strength
+    # too short already: thinning leaves out points, which only shortens the path (a margin
+    # over the rounding of the two sums); most clusters, single short pieces, end here
+    if _path_length(pts) < opts['min_length_px'] * (1.0 - 1e-9):
+        return None
     # thin out duplicates (overlapping views see the same edge): keep points >= 0.6 spacing apart
     min_d = 0.6 * opts['spacing_px']
     keep = _thin(pts, min_d)
     pts, rays, phi, strength = pts[keep], rays[keep], phi[keep], strength[keep]
     if len(pts) < opts['min_points']:
         return None
-    res, normal = plane_residual_px(camera, pts, rays=rays)
     length = _path_length(pts)
+    if length < opts['min_length_px']:
+        return None
+    res, normal = plane_residual_px(camera, pts, rays=rays)
     rms = _rms(res)
-    if length < opts['min_length_px'] or not rms <= _tolerance(opts, length):
+    if not rms <= _tolerance(opts, length):
         return None
     views = tuple(sorted({p.view for p in cl.parts}))
     main = max(cl.parts, key=lambda p: len(p.points)).view
