@@ -558,3 +558,22 @@ def test_views_made_in_threads_are_the_views_made_in_one(kb_views):
         assert (one.f, one.size, one.scale, one.off_axis_deg) == (many.f, many.size, many.scale, many.off_axis_deg)
         for name in ('R', 'direction', 'map_x', 'map_y', 'inside'):
             np.testing.assert_array_equal(getattr(one, name), getattr(many, name))
+
+
+def test_pixels_outside_a_view_take_the_nearest_inside_pixel():
+    """A view's maps repeat, outside the image, the nearest pixel inside (no artificial edge for
+    the segment detector); both maps of a view share one search: every pixel's source is inside,
+    an inside pixel is its own, and none is farther than the nearest inside pixel by more than the
+    distance transform's approximation (a few percent)."""
+    from zeroshot_calib_ros.core.lines.detect import _nearest_inside
+    yy, xx = np.mgrid[0:40, 0:50]
+    inside = ((xx - 22) ** 2 + (yy - 18) ** 2 <= 12 ** 2) | ((xx > 40) & (yy > 30))
+    source = _nearest_inside(inside)
+    flat = inside.ravel()
+    assert flat[source].all()
+    np.testing.assert_array_equal(source[flat], np.flatnonzero(flat))
+    sy, sx = np.divmod(source, 50)
+    inside_yx = np.argwhere(inside)
+    nearest = np.sqrt(((np.stack([yy.ravel(), xx.ravel()], 1)[:, None, :] - inside_yx[None]) ** 2).sum(2).min(1))
+    assert np.all(np.hypot(sy - yy.ravel(), sx - xx.ravel()) <= nearest * 1.05 + 0.5)
+    assert _nearest_inside(np.zeros((5, 5), bool)) is None

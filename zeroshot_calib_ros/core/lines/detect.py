@@ -242,8 +242,11 @@ def _make_view(camera: CameraModel, d: np.ndarray, beta: float, max_view_px: int
     if inside.mean() < min_inside:
         return None
     # outside the image: repeat the nearest inside pixel (no artificial edge for the detector)
-    mx = np.clip(mx, 0, w - 1) if inside.all() else _fill_outside(mx, inside, w)
-    my = np.clip(my, 0, h - 1) if inside.all() else _fill_outside(my, inside, h)
+    if inside.all():
+        mx, my = np.clip(mx, 0, w - 1), np.clip(my, 0, h - 1)
+    else:
+        source = _nearest_inside(inside)
+        mx, my = _fill_outside(mx, inside, w, source), _fill_outside(my, inside, h, source)
     return View(-1, R, f, size, d, math.degrees(math.acos(max(-1.0, min(1.0, d[2])))),
                 size / native, mx.astype(np.float32), my.astype(np.float32), inside)
 
@@ -269,11 +272,11 @@ def _cached_views(camera: CameraModel) -> ViewSet:
     return vs
 
 
-def _fill_outside(m, inside, limit):
-    """Map values outside ``inside`` replaced by the nearest inside value (distance transform)."""
-    out = np.array(m, dtype=np.float32)
+def _nearest_inside(inside: np.ndarray) -> Optional[np.ndarray]:
+    """For every pixel, the flat index of the nearest pixel of ``inside`` (a distance transform;
+    an inside pixel is its own), or None when no pixel is inside."""
     if not inside.any():
-        return np.zeros_like(out)
+        return None
     _, labels = cv2.distanceTransformWithLabels((~inside).astype(np.uint8), cv2.DIST_L2, 5,
                                                 labelType=cv2.DIST_LABEL_PIXEL)
     # labels index the zero pixels (inside) in scan order
@@ -281,7 +284,18 @@ def _fill_outside(m, inside, limit):
     lut = np.zeros(labels.max() + 1, dtype=np.int64)
     zero_labels = labels.ravel()[idx]
     lut[zero_labels] = idx
-    filled = out.ravel()[lut[labels.ravel()]].reshape(out.shape)
+    return lut[labels.ravel()]
+
+
+def _fill_outside(m, inside, limit, source: Optional[np.ndarray] = None):
+    """Map values outside ``inside`` replaced by the nearest inside value; ``source``: the
+    ``_nearest_inside(inside)`` already found (a view's two maps share one)."""
+    out = np.array(m, dtype=np.float32)
+    if source is None:
+        source = _nearest_inside(inside)
+    if source is None:
+        return np.zeros_like(out)
+    filled = out.ravel()[source].reshape(out.shape)
     return np.clip(np.where(inside, out, filled), 0, limit - 1)
 
 
