@@ -517,7 +517,7 @@ def test_refine_from_images_makes_curves_again_under_the_refined_camera(monkeypa
                                         zero_shot_camera=zs)
     monkeypatch.setattr(detect_module, 'find_edges', find_edges)
     monkeypatch.setattr(detect_module, 'curves_from_edges', curves_from_edges)
-    monkeypatch.setattr(detect_module, 'make_views', lambda camera: None)
+    monkeypatch.setattr(detect_module, 'make_views', lambda camera, **kw: None)
     monkeypatch.setattr(refine_module, 'refine_camera', fit)
     refine_from_images(spec, [np.zeros((H, W), np.uint8)] * 2, rounds=2)
     assert len(looked_with) == 2  # with zero-shot's camera of the spec's FOVs rounded (where to look)
@@ -609,7 +609,7 @@ def test_refine_from_images_fits_in_its_workers(monkeypatch):
     curves = {i: [Curve(p, i) for p in line_curves(TRUTH, rng, 12)] for i in range(2)}
     monkeypatch.setattr(detect_module, 'find_edges', lambda image, camera, views=None, **kw: object())
     monkeypatch.setattr(detect_module, 'curves_from_edges', lambda edges, camera, image_id=None: curves[image_id])
-    monkeypatch.setattr(detect_module, 'make_views', lambda camera: None)
+    monkeypatch.setattr(detect_module, 'make_views', lambda camera, **kw: None)
     evaluate, threads = problem_module.Problem._evaluate, []
 
     def recording(self, x, robust):
@@ -667,3 +667,44 @@ def test_straightness_residuals_remembered_are_those_computed():
     import pickle
     copy = pickle.loads(pickle.dumps(term))
     assert np.array_equal(copy.point_residuals(camera), whole, equal_nan=True)
+
+
+def test_the_fit_runs_openblas_in_one_thread_and_gives_the_threads_back():
+    """refine's fits run every OpenBLAS in one thread (threads waiting for busy cores made each SVD
+    of the Jacobian ten times slower); nested and overlapping blocks keep it at one until the
+    last ends, which restores what the process had."""
+    import threading
+    from zeroshot_calib_ros.core.estimation.problem import one_blas_thread, openblas_thread_controls
+    blas = np.show_config(mode='dicts')['Build Dependencies']['blas']['name'].lower()
+    controls = openblas_thread_controls()
+    if 'openblas' in blas:
+        assert controls, 'numpy uses OpenBLAS, but no OpenBLAS thread control was found'
+    if not controls:
+        pytest.skip('no OpenBLAS in this process')
+    before = [get() for get, _ in controls]
+    try:
+        for _, put in controls:
+            put(3)
+        # a single-threaded build (OpenCV's own old copy on some systems) stays at one: nothing to do there
+        controls = [(get, put) for get, put in controls if get() == 3]
+        if 'openblas' in blas:
+            assert controls, "numpy's OpenBLAS does not take a thread count"
+        entered, leave = threading.Event(), threading.Event()
+
+        def other_fit():
+            with one_blas_thread():
+                entered.set()
+                leave.wait(10)
+
+        with one_blas_thread():
+            assert [get() for get, _ in controls] == [1] * len(controls)
+            worker = threading.Thread(target=other_fit)
+            worker.start()
+            assert entered.wait(10)
+        assert [get() for get, _ in controls] == [1] * len(controls)  # the other fit still runs
+        leave.set()
+        worker.join(10)
+        assert [get() for get, _ in controls] == [3] * len(controls)
+    finally:
+        for (_, put), count in zip(openblas_thread_controls(), before):
+            put(count)

@@ -87,7 +87,7 @@ def test_the_detector_looks_with_a_camera_that_ignores_the_last_digits_of_the_fo
 def test_rounded_fovs_rounds_every_fov_and_keeps_the_rest():
     spec = CameraSpec(1032, 778, circle_diameter=770.0, circle_fov=187.6)
     assert rounded_fovs(spec) == CameraSpec(1032, 778, circle_diameter=770.0, circle_fov=188.0)
-    assert rounded_fovs(CameraSpec(640, 480, hfov=93.49, vfov=59.51, dfov=106.5)) == \
+    assert rounded_fovs(CameraSpec(640, 480, hfov=93.49, vfov=59.51, dfov=106.4)) == \
         CameraSpec(640, 480, hfov=93.0, vfov=60.0, dfov=106.0)
 
 

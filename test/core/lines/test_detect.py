@@ -490,3 +490,90 @@ def test_nearest_distances_are_the_same_by_tree_as_by_brute_force():
     shuffled = rng.permutation(len(theirs))
     np.testing.assert_array_equal(detect_module._nearest_distances(mine, theirs[shuffled]),
                                   detect_module._nearest_distances(mine, theirs))
+
+
+def test_nearest_distances_by_sweep_are_brute_forces_to_the_last_bit():
+    """Above NEAREST_BRUTE_PAIRS the distances come from a sweep along one axis; merge decisions
+    compare them with thresholds and with each other, so they must be brute force's numbers
+    exactly, for curves along either axis, duplicated points, ties and a far-away piece."""
+    from zeroshot_calib_ros.core.lines import detect as detect_module
+
+    def brute(mine, theirs):
+        return np.sqrt(np.min(np.sum((mine[:, None, :] - theirs[None, :, :]) ** 2, axis=2), axis=1))
+
+    rng = np.random.default_rng(11)
+    curve = np.cumsum(rng.uniform(-0.5, 2.0, (400, 2)), axis=0) + 300
+    vertical = np.stack([100 + rng.normal(0, 0.2, 500), np.arange(500) * 2.0], axis=1)
+    grid = np.round(rng.uniform(0, 40, (300, 2)))  # many equal distances
+    cases = [(curve[rng.integers(0, 400, 150)] + rng.normal(0, 0.4, (150, 2)), curve),
+             (curve[:, ::-1] + 0.3, curve[:, ::-1].copy()),
+             (np.stack([np.full(200, 101.0), rng.uniform(0, 1000, 200)], axis=1), vertical),
+             (np.round(rng.uniform(0, 40, (100, 2))), grid),
+             (curve[:100] + 500.0, curve),                       # a piece far from the cluster
+             (np.repeat(curve[:20], 10, axis=0), np.repeat(curve, 2, axis=0))]
+    for mine, theirs in cases:
+        assert len(mine) * len(theirs) > detect_module.NEAREST_BRUTE_PAIRS  # the sweep
+        np.testing.assert_array_equal(detect_module._nearest_distances(mine, theirs), brute(mine, theirs))
+
+
+def test_group_medians_are_numpys_medians_per_group():
+    """Pieces trim their outliers by per-segment medians of residuals: every group's median must
+    be the middle of its sorted values (np.median's; a NaN sorts last, as in np.sort), for runs
+    of groups (points of segments) and for groups in any order, with empty groups, NaN values,
+    ties and one group much longer than the others."""
+
+    def middle(v):
+        s = np.sort(v)
+        return 0.5 * (s[(len(s) - 1) // 2] + s[len(s) // 2]) if len(s) else np.nan
+
+    from zeroshot_calib_ros.core.lines.detect import _group_median
+    rng = np.random.default_rng(5)
+    for trial in range(60):
+        n_groups = int(rng.integers(1, 40))
+        sizes = rng.integers(0, 30, n_groups)
+        if trial % 3 == 0:
+            sizes[rng.integers(0, n_groups)] = 900  # a long segment among short ones
+        group = np.repeat(np.arange(n_groups), sizes)
+        values = rng.normal(0, 1, len(group))
+        if trial % 4 == 1:
+            values = np.round(values * 2) / 2  # ties
+        if trial % 5 == 2 and len(values):
+            values[rng.integers(0, len(values), 3)] = np.nan
+        if trial % 2:
+            shuffled = rng.permutation(len(group))
+            group, values = group[shuffled], values[shuffled]
+        expected = np.array([middle(values[group == g]) for g in range(n_groups)])
+        if not np.isnan(values).any():
+            np.testing.assert_array_equal(expected, [np.median(values[group == g]) if (group == g).any() else np.nan
+                                                     for g in range(n_groups)])
+        np.testing.assert_array_equal(_group_median(values, group, n_groups), expected)
+
+
+def test_views_made_in_threads_are_the_views_made_in_one(kb_views):
+    """refine makes the views in its workers' threads: the same views, in the same order, with the
+    same maps (the detector then sees the same pixels)."""
+    threaded = make_views(KB, workers=2)
+    assert [v.index for v in threaded.views] == list(range(len(kb_views.views))) and len(threaded) == len(kb_views)
+    for one, many in zip(kb_views.views, threaded.views):
+        assert (one.f, one.size, one.scale, one.off_axis_deg) == (many.f, many.size, many.scale, many.off_axis_deg)
+        for name in ('R', 'direction', 'map_x', 'map_y', 'inside'):
+            np.testing.assert_array_equal(getattr(one, name), getattr(many, name))
+
+
+def test_pixels_outside_a_view_take_the_nearest_inside_pixel():
+    """A view's maps repeat, outside the image, the nearest pixel inside (no artificial edge for
+    the segment detector); both maps of a view share one search: every pixel's source is inside,
+    an inside pixel is its own, and none is farther than the nearest inside pixel by more than the
+    distance transform's approximation (a few percent)."""
+    from zeroshot_calib_ros.core.lines.detect import _nearest_inside
+    yy, xx = np.mgrid[0:40, 0:50]
+    inside = ((xx - 22) ** 2 + (yy - 18) ** 2 <= 12 ** 2) | ((xx > 40) & (yy > 30))
+    source = _nearest_inside(inside)
+    flat = inside.ravel()
+    assert flat[source].all()
+    np.testing.assert_array_equal(source[flat], np.flatnonzero(flat))
+    sy, sx = np.divmod(source, 50)
+    inside_yx = np.argwhere(inside)
+    nearest = np.sqrt(((np.stack([yy.ravel(), xx.ravel()], 1)[:, None, :] - inside_yx[None]) ** 2).sum(2).min(1))
+    assert np.all(np.hypot(sy - yy.ravel(), sx - xx.ravel()) <= nearest * 1.05 + 0.5)
+    assert _nearest_inside(np.zeros((5, 5), bool)) is None

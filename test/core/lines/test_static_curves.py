@@ -14,7 +14,7 @@ from pictures import sheet_panels
 from test_image_region import CIRCULAR, dense_error_px, render
 from zeroshot_calib_ros.core.estimation.refine import refine_from_images
 from zeroshot_calib_ros.core.lines.detect import Curve
-from zeroshot_calib_ros.core.lines.static_curves import same_edge_share, static_curves
+from zeroshot_calib_ros.core.lines.static_curves import image_gradients, same_edge_share, static_curves
 from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
 
 W, H = 640, 480
@@ -70,6 +70,20 @@ def test_the_body_that_stays_put_is_found_in_every_frame_and_the_moving_lines_ar
     static = static_curves(curves, images)
     bodies = np.array([k % 5 == 0 for k in range(len(curves))])
     np.testing.assert_array_equal(static, bodies)
+
+
+def test_gradients_made_ahead_are_the_ones_used_and_give_the_same_verdicts():
+    """refine makes each image's gradients in its detection threads and hands them over: the
+    verdicts must be those static_curves reaches on its own, and the handed-over gradients must be
+    the ones sampled (an image whose gradients are all zero shows no edge: its body is not found
+    there, so with two frames nothing is static)."""
+    curves, images = frames_with_a_body()
+    ahead = {k: image_gradients(image) for k, image in enumerate(images)}
+    np.testing.assert_array_equal(static_curves(curves, images, dict(ahead)), static_curves(curves, images))
+    two = [c for c in curves if c.image < 2]
+    assert static_curves(two, images[:2]).any()
+    blank = {0: ahead[0], 1: np.zeros_like(ahead[1])}
+    assert not static_curves(two, images[:2], blank).any()
 
 
 def test_the_body_is_found_where_the_detector_saw_only_part_of_it_in_the_other_frames():

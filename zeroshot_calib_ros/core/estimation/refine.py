@@ -56,7 +56,7 @@ from ..lens.models import KannalaBrandtCamera
 from ..lines.straightness import StraightnessTerm, curve_image, curve_points
 from ..zeroshot.spec import CameraSpec
 from .fit import SOLVE_TOL, LineFit, fit_lines
-from .problem import Problem, jacobian_threads
+from .problem import Problem, jacobian_threads, one_blas_thread
 from .terms import FOV_TOLERANCE_DEG, SHAPE_SIGMA, FovTerm, ImageCircleTerm, PrincipalPointPrior, ShapePrior
 from .uncertainty import (Uncertainty, displacement, image_circle_radius, pixel_grid, probability_other_is_better,
                           problem_uncertainty)
@@ -639,11 +639,14 @@ def refine_from_frames(spec: CameraSpec, curves: Sequence, images, width: int, h
     dirt) left out of the fit and listed in ``Refinement.static_curves``. ``images``: the frames,
     indexed by the curves' ``image``. What ``refine_from_images`` and the node's refine worker
     both fit. ``solution``: as ``refine_camera``'s. ``gradients``: a dict kept across calls on
-    the same ``images`` (``static_curves``': their gradients computed once)."""
+    the same ``images`` (``static_curves``': their gradients computed once). The fit's BLAS calls run
+    in one thread (``problem.one_blas_thread``: the same numbers, without OpenBLAS's threads
+    waiting for busy cores)."""
     from ..lines.static_curves import static_curves
     static = static_curves(curves, images, gradients)
-    result = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,
-                           fov_tolerance_deg, initial=initial, solution=solution, image_circle=image_circle)
+    with one_blas_thread():
+        result = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,
+                               fov_tolerance_deg, initial=initial, solution=solution, image_circle=image_circle)
     result.static_curves = [c for c, s in zip(curves, static) if s]
     return result
 
@@ -679,6 +682,7 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     passed to every round's fit."""
     from ..lines.detect import curves_from_edges, find_edges, make_views
     from ..lines.image_region import combine_circles, find_image_region
+    from ..lines.static_curves import image_gradients
     images = list(images)
     if not images:
         raise ValueError('no images given')
@@ -703,7 +707,7 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
         # zero_shot.ZeroShotStart.detection_camera); later rounds make curves
         # of them under the refined camera (pieces straight under it, merged), which is where a
         # better camera changes the evidence: longer lines pass the straightness test and merge
-        views = make_views(start.detection_camera) if round_index == 0 else None
+        views = make_views(start.detection_camera, workers=workers) if round_index == 0 else None
         curves = []
 
         def detected(done, camera=camera, round_index=round_index):
@@ -716,6 +720,10 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
             if edges[index] is None:
                 look = start.detection_camera  # where to look; the curves are made under the exact camera
                 edges[index] = find_edges(image, look, views=views, region=regions[index], **detect_options)
+                if len(images) > 1:
+                    # static_curves' gradients of this image, made here: in the workers' threads,
+                    # beside another image's detection, instead of after all of them
+                    gradients[index] = image_gradients(image)
             return curves_from_edges(edges[index], camera, image_id=index)
 
         if workers > 1 and len(images) > 1:

@@ -168,14 +168,16 @@ def _max_angle(camera: CameraModel) -> float:
 
 
 def make_views(camera: CameraModel, half_fov_deg: float = 36.0, max_view_px: int = 640,
-               min_inside: float = 0.12) -> ViewSet:
+               min_inside: float = 0.12, workers: int = 1) -> ViewSet:
     """Pinhole views of ``camera`` covering its field of view.
 
     Square views of half-FOV ``half_fov_deg`` (edge to centre): one along the axis, then rings
     every 1.3 half-FOVs off-axis (as many views per ring as keep neighbours overlapping) up to
     the image's widest ray (beyond 90 degrees for a lens that sees that far). Each view's focal
     length matches the raw image's resolution near its centre, at most ``max_view_px`` wide.
-    Views whose pixels fall mostly outside the image (``min_inside``) are left out."""
+    Views whose pixels fall mostly outside the image (``min_inside``) are left out. ``workers``
+    > 1: the views are made in that many threads (OpenCV and numpy release the GIL over the maps;
+    each view is made alone, so they are the same views)."""
     beta = math.radians(half_fov_deg)
     theta_max = _max_angle(camera)
     limit = getattr(camera, 'theta_max', None)
@@ -190,46 +192,63 @@ def make_views(camera: CameraModel, half_fov_deg: float = 36.0, max_view_px: int
             directions.append(np.array([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi),
                                         math.cos(theta)]))
         theta += step
+    if workers > 1 and len(directions) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            made = list(pool.map(lambda d: _make_view(camera, d, beta, max_view_px, min_inside, limit), directions))
+    else:
+        made = [_make_view(camera, d, beta, max_view_px, min_inside, limit) for d in directions]
     views = []
-    w, h = camera.width, camera.height
-    for d in directions:
-        density = _local_density(camera, d)
-        if not math.isfinite(density) or density <= 0:
-            continue
-        native = 2 * density * math.tan(beta)
-        size = int(min(max_view_px, max(64, round(native))))
-        f = (size / 2) / math.tan(beta)
-        R = _view_rotation(d)
-        c = (size - 1) / 2.0
-        # the maps only make the image the segment detector looks at (points are mapped back
-        # exactly, through the view's rays): computed every 4th pixel and interpolated
-        step = 4
-        g = np.arange(0, size + step, step, dtype=float)
-        xx, yy = np.meshgrid(g, g)
-        v = np.stack([(xx - c) / f, (yy - c) / f, np.ones_like(xx)], axis=-1) @ R.T
-        with np.errstate(invalid='ignore'):
-            raw = camera.project(v)
-            ok = np.isfinite(raw).all(axis=-1)
-            if limit is not None and math.isfinite(limit):
-                ok &= np.arctan2(np.linalg.norm(v[..., :2], axis=-1), v[..., 2]) <= limit
-        mx_c = np.where(ok, raw[..., 0], -1e4).astype(np.float32)
-        my_c = np.where(ok, raw[..., 1], -1e4).astype(np.float32)
-        full = np.arange(size, dtype=np.float32) / step
-        fx, fy = np.meshgrid(full, full)
-        mx = cv2.remap(mx_c, fx, fy, cv2.INTER_LINEAR)
-        my = cv2.remap(my_c, fx, fy, cv2.INTER_LINEAR)
-        inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
-        circle = getattr(camera, 'circle_radius', None)
-        if circle is not None and math.isfinite(circle):
-            inside &= np.hypot(mx - camera.cx, my - camera.cy) <= circle
-        if inside.mean() < min_inside:
-            continue
-        # outside the image: repeat the nearest inside pixel (no artificial edge for the detector)
-        mx = np.clip(mx, 0, w - 1) if inside.all() else _fill_outside(mx, inside, w)
-        my = np.clip(my, 0, h - 1) if inside.all() else _fill_outside(my, inside, h)
-        views.append(View(len(views), R, f, size, d, math.degrees(math.acos(max(-1.0, min(1.0, d[2])))),
-                          size / native, mx.astype(np.float32), my.astype(np.float32), inside))
+    for view in made:
+        if view is not None:
+            view.index = len(views)
+            views.append(view)
     return ViewSet(camera, views, half_fov_deg)
+
+
+def _make_view(camera: CameraModel, d: np.ndarray, beta: float, max_view_px: int, min_inside: float,
+               limit) -> Optional[View]:
+    """One view of ``make_views`` along direction ``d`` (its index set by the caller), or None."""
+    w, h = camera.width, camera.height
+    density = _local_density(camera, d)
+    if not math.isfinite(density) or density <= 0:
+        return None
+    native = 2 * density * math.tan(beta)
+    size = int(min(max_view_px, max(64, round(native))))
+    f = (size / 2) / math.tan(beta)
+    R = _view_rotation(d)
+    c = (size - 1) / 2.0
+    # the maps only make the image the segment detector looks at (points are mapped back
+    # exactly, through the view's rays): computed every 4th pixel and interpolated
+    step = 4
+    g = np.arange(0, size + step, step, dtype=float)
+    xx, yy = np.meshgrid(g, g)
+    v = np.stack([(xx - c) / f, (yy - c) / f, np.ones_like(xx)], axis=-1) @ R.T
+    with np.errstate(invalid='ignore'):
+        raw = camera.project(v)
+        ok = np.isfinite(raw).all(axis=-1)
+        if limit is not None and math.isfinite(limit):
+            ok &= np.arctan2(np.linalg.norm(v[..., :2], axis=-1), v[..., 2]) <= limit
+    mx_c = np.where(ok, raw[..., 0], -1e4).astype(np.float32)
+    my_c = np.where(ok, raw[..., 1], -1e4).astype(np.float32)
+    full = np.arange(size, dtype=np.float32) / step
+    fx, fy = np.meshgrid(full, full)
+    mx = cv2.remap(mx_c, fx, fy, cv2.INTER_LINEAR)
+    my = cv2.remap(my_c, fx, fy, cv2.INTER_LINEAR)
+    inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
+    circle = getattr(camera, 'circle_radius', None)
+    if circle is not None and math.isfinite(circle):
+        inside &= np.hypot(mx - camera.cx, my - camera.cy) <= circle
+    if inside.mean() < min_inside:
+        return None
+    # outside the image: repeat the nearest inside pixel (no artificial edge for the detector)
+    if inside.all():
+        mx, my = np.clip(mx, 0, w - 1), np.clip(my, 0, h - 1)
+    else:
+        source = _nearest_inside(inside)
+        mx, my = _fill_outside(mx, inside, w, source), _fill_outside(my, inside, h, source)
+    return View(-1, R, f, size, d, math.degrees(math.acos(max(-1.0, min(1.0, d[2])))),
+                size / native, mx.astype(np.float32), my.astype(np.float32), inside)
 
 
 _VIEW_CACHE: list = []   # [(key, ViewSet)], the few most recent cameras
@@ -253,11 +272,11 @@ def _cached_views(camera: CameraModel) -> ViewSet:
     return vs
 
 
-def _fill_outside(m, inside, limit):
-    """Map values outside ``inside`` replaced by the nearest inside value (distance transform)."""
-    out = np.array(m, dtype=np.float32)
+def _nearest_inside(inside: np.ndarray) -> Optional[np.ndarray]:
+    """For every pixel, the flat index of the nearest pixel of ``inside`` (a distance transform;
+    an inside pixel is its own), or None when no pixel is inside."""
     if not inside.any():
-        return np.zeros_like(out)
+        return None
     _, labels = cv2.distanceTransformWithLabels((~inside).astype(np.uint8), cv2.DIST_L2, 5,
                                                 labelType=cv2.DIST_LABEL_PIXEL)
     # labels index the zero pixels (inside) in scan order
@@ -265,7 +284,18 @@ def _fill_outside(m, inside, limit):
     lut = np.zeros(labels.max() + 1, dtype=np.int64)
     zero_labels = labels.ravel()[idx]
     lut[zero_labels] = idx
-    filled = out.ravel()[lut[labels.ravel()]].reshape(out.shape)
+    return lut[labels.ravel()]
+
+
+def _fill_outside(m, inside, limit, source: Optional[np.ndarray] = None):
+    """Map values outside ``inside`` replaced by the nearest inside value; ``source``: the
+    ``_nearest_inside(inside)`` already found (a view's two maps share one)."""
+    out = np.array(m, dtype=np.float32)
+    if source is None:
+        source = _nearest_inside(inside)
+    if source is None:
+        return np.zeros_like(out)
+    filled = out.ravel()[source].reshape(out.shape)
     return np.clip(np.where(inside, out, filled), 0, limit - 1)
 
 
@@ -479,9 +509,11 @@ def _approx_residual_px(rays, jac, normal, per_point=False):
     else:
         a = rays @ normal
         perp = normal[None, :] - a[:, None] * rays
-    perp /= np.maximum(np.linalg.norm(perp, axis=1, keepdims=True), 1e-12)
-    speed = np.linalg.norm(np.einsum('nij,nj->ni', jac, perp), axis=1)
-    return np.arcsin(np.clip(a, -1.0, 1.0)) * speed, speed
+    # np.linalg.norm's and np.clip's arithmetic, without their Python wrappers (the same numbers)
+    perp /= np.maximum(np.sqrt(np.add.reduce(perp * perp, axis=1, keepdims=True)), 1e-12)
+    motion = np.einsum('nij,nj->ni', jac, perp)
+    speed = np.sqrt(np.add.reduce(motion * motion, axis=1))
+    return np.arcsin(np.minimum(np.maximum(a, -1.0), 1.0)) * speed, speed
 
 
 def _fit_plane_fast(rays):
@@ -490,15 +522,28 @@ def _fit_plane_fast(rays):
 
 
 def _group_median(values: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
-    """Median of ``values`` per group id (0..n_groups-1); NaN for an empty group."""
-    order = np.lexsort((values, group))
-    v, g = values[order], group[order]
-    counts = np.bincount(g, minlength=n_groups)
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    """Median of ``values`` per group id (0..n_groups-1); NaN for an empty group (a NaN value
+    sorts last, as in ``np.sort``). Only the middle values of each group's sorted values are
+    needed, not a sort of all values by (group, value): when the groups are runs, as the points of
+    a view's segments are, each run is one row of a NaN-padded array sorted along its rows;
+    otherwise the values are sorted and then, stably, their groups."""
+    n = len(values)
+    counts = np.bincount(group, minlength=n_groups)
+    start = np.cumsum(counts) - counts
+    width = int(counts.max()) if n else 0
+    if n and n_groups * width <= 4 * n + 1024 and bool((group[1:] >= group[:-1]).all()):
+        rows = np.full((n_groups, width), np.nan)
+        rows[group, np.arange(n) - start[group]] = values
+        rows.sort(axis=1)
+        v, first = rows.ravel(), np.arange(n_groups) * width
+    else:
+        order = np.argsort(values)
+        g = group[order]
+        v, first = values[order[np.argsort(g.astype(np.int16) if n_groups <= 32767 else g, kind='stable')]], start
     out = np.full(n_groups, np.nan)
     has = counts > 0
-    lo = start[has] + (counts[has] - 1) // 2
-    hi = start[has] + counts[has] // 2
+    lo = first[has] + (counts[has] - 1) // 2
+    hi = first[has] + counts[has] // 2
     out[has] = 0.5 * (v[lo] + v[hi])
     return out
 
@@ -513,11 +558,15 @@ def _make_pieces(points, rays, jac, grad, seg, view_index, opts) -> List[_Piece]
     if n_seg == 0:
         return []
     active = np.ones(len(points), bool)
-    outer = rays[:, :, None] * rays[:, None, :]
+    # the six distinct products of each ray's outer product, summed per segment in the order of
+    # the points (bincount adds as np.add.at does: the same sums)
+    products = [(i, j, rays[:, i] * rays[:, j]) for i in range(3) for j in range(i, 3)]
     for it in range(5):
-        counts = np.bincount(seg[active], minlength=n_seg)
-        S = np.zeros((n_seg, 3, 3))
-        np.add.at(S, seg[active], outer[active])
+        in_seg = seg[active]
+        counts = np.bincount(in_seg, minlength=n_seg)
+        S = np.empty((n_seg, 3, 3))
+        for i, j, product in products:
+            S[:, i, j] = S[:, j, i] = np.bincount(in_seg, weights=product[active], minlength=n_seg)
         S[counts < 3] = np.eye(3)
         normals = np.linalg.eigh(S)[1][:, :, 0]
         res, speed = _approx_residual_px(rays, jac, normals[seg], per_point=True)
@@ -590,7 +639,7 @@ def _pieces(camera: CameraModel, edges: EdgePoints, opts) -> List[_Piece]:
 def _basis(normal):
     ref = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     e1 = ref - (ref @ normal) * normal
-    e1 /= np.linalg.norm(e1)
+    e1 /= math.sqrt(e1.dot(e1))  # np.linalg.norm's arithmetic, without its wrapper
     e2 = np.array([normal[1] * e1[2] - normal[2] * e1[1], normal[2] * e1[0] - normal[0] * e1[2],
                    normal[0] * e1[1] - normal[1] * e1[0]])
     return e1, e2
@@ -607,7 +656,7 @@ class _Cluster:
     def _set(self, points, rays, jac, strength, normal):
         self.normal = normal
         e1, e2 = _basis(normal)
-        m = rays.mean(axis=0)
+        m = np.add.reduce(rays, axis=0) / len(rays)  # rays.mean(axis=0), the same numbers
         self.centre = math.atan2(m @ e2, m @ e1)
         self.e1, self.e2 = e1, e2
         phi = self.angles(rays)
@@ -627,37 +676,65 @@ class _Cluster:
 
 
 def _rms(x):
-    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else math.inf
+    # np.mean's sum and division, without its generic machinery (the same number)
+    return math.sqrt(np.add.reduce(np.square(x)) / len(x)) if len(x) else math.inf
 
 
 NEAREST_BRUTE_PAIRS = 4096
-"""Below this many point pairs the nearest distances are found by brute force (a k-d tree's
-construction costs more than it saves); above, by a k-d tree. Both give the same distances."""
+"""Below this many point pairs the nearest distances are found by brute force (every pair); above,
+by a sweep along one axis (``_nearest_distances``). Both give the same distances."""
 
 
 def _nearest_distances(mine: np.ndarray, theirs: np.ndarray) -> np.ndarray:
-    """The distance of each point of ``mine`` to its nearest point of ``theirs``."""
-    if len(mine) * len(theirs) <= NEAREST_BRUTE_PAIRS:
+    """The distance of each point of ``mine`` to its nearest point of ``theirs``.
+
+    Large sets by a sweep: ``theirs`` sorted along the axis it spreads over most; each point of
+    ``mine`` is first measured to its two neighbours in that order (a distance the nearest point
+    cannot exceed), then to every point of ``theirs`` within that distance along the axis (a point
+    farther along the axis is farther away). Every distance is the same sum of the squared
+    coordinate differences as brute force computes, so the two give the same numbers."""
+    n = len(theirs)
+    if len(mine) * n <= NEAREST_BRUTE_PAIRS or n < 2:
         return np.sqrt(np.min(np.sum((mine[:, None, :] - theirs[None, :, :]) ** 2, axis=2), axis=1))
-    from scipy.spatial import cKDTree  # scipy is a core dependency; imported where a tree pays
-    return cKDTree(theirs).query(mine)[0]
+    tx, ty = theirs[:, 0], theirs[:, 1]
+    mx, my = mine[:, 0], mine[:, 1]
+    if tx.max() - tx.min() < ty.max() - ty.min():
+        tx, ty, mx, my = ty, tx, my, mx
+    order = np.argsort(tx, kind='stable')
+    tx, ty = tx[order], ty[order]
+    pos = np.searchsorted(tx, mx)
+    np.clip(pos, 1, n - 1, out=pos)
+    bound = np.minimum((mx - tx[pos - 1]) ** 2 + (my - ty[pos - 1]) ** 2, (mx - tx[pos]) ** 2 + (my - ty[pos]) ** 2)
+    reach = np.sqrt(bound) * (1.0 + 1e-9) + 1e-9   # a margin over the rounding of the differences
+    lo = np.searchsorted(tx, mx - reach, 'left')
+    counts = np.maximum(np.searchsorted(tx, mx + reach, 'right') - lo, 1)
+    ends = np.cumsum(counts)
+    starts = ends - counts
+    rows = np.repeat(np.arange(len(mx)), counts)
+    cols = np.minimum(np.arange(ends[-1]) - np.repeat(starts - lo, counts), n - 1)
+    return np.sqrt(np.minimum.reduceat((mx[rows] - tx[cols]) ** 2 + (my[rows] - ty[cols]) ** 2, starts))
 
 
-def _try_merge(cl: _Cluster, piece: _Piece, opts):
-    """(local RMS, joint normal) when ``piece`` continues or duplicates ``cl``, else None."""
+def _try_merge(cl: _Cluster, piece: _Piece, opts, beat: float = math.inf):
+    """(local RMS, joint normal) when ``piece`` continues or duplicates ``cl``, else None; also
+    None, without the joint fit, when the local RMS is not below ``beat`` (the best found so far
+    for this piece: this cluster cannot be the better choice)."""
     phi = cl.angles(piece.rays)
-    lo, hi = max(phi.min(), cl.phi[0]), min(phi.max(), cl.phi[-1])
+    pmin, pmax = phi.min(), phi.max()
+    first, last = cl.phi[0], cl.phi[-1]
+    lo, hi = max(pmin, first), min(pmax, last)
     local_tol = max(opts['junction_px'], 1.5 * max(cl.rms, piece.rms))
     if hi > lo:
         # overlapping spans: the same edge seen twice (or two edges side by side)
         mine = piece.points[(phi >= lo) & (phi <= hi)]
-        theirs = cl.points[(cl.phi >= lo) & (cl.phi <= hi)]
+        # the cluster's angles are sorted: its points within [lo, hi] are one run
+        theirs = cl.points[np.searchsorted(cl.phi, lo, 'left'):np.searchsorted(cl.phi, hi, 'right')]
         if len(mine) == 0 or len(theirs) == 0:
             return None
         local = _median(_nearest_distances(mine, theirs))
-        if local > opts['duplicate_px']:
+        if local > opts['duplicate_px'] or not local < beat:
             return None
-        if phi.min() >= cl.phi[0] and phi.max() <= cl.phi[-1]:
+        if pmin >= first and pmax <= last:
             return local, cl.normal  # inside the cluster's span: nothing new to check
     else:
         gap = lo - hi
@@ -665,12 +742,12 @@ def _try_merge(cl: _Cluster, piece: _Piece, opts):
             return None
         # across the gap, the longer of the two (the cluster's end near the junction, or the
         # piece) extended along its great circle passes through the other
-        width = max(phi.max() - phi.min(), gap, math.radians(2.0))
-        if phi.min() >= cl.phi[-1]:
-            near = cl.phi >= cl.phi[-1] - width
+        width = max(pmax - pmin, gap, math.radians(2.0))
+        if pmin >= last:
+            near = cl.phi >= last - width
             gap_px = math.hypot(*(piece.points[np.argmin(phi)] - cl.points[-1]))
         else:
-            near = cl.phi <= cl.phi[0] + width
+            near = cl.phi <= first + width
             gap_px = math.hypot(*(piece.points[np.argmax(phi)] - cl.points[0]))
         if near.sum() < opts['min_points']:
             near = np.ones(len(cl.phi), bool)
@@ -684,7 +761,7 @@ def _try_merge(cl: _Cluster, piece: _Piece, opts):
         else:
             res, _ = _approx_residual_px(cl.rays[near], cl.jac[near], piece.normal)
         local = _rms(res)
-        if not local <= local_tol + opts['tolerance_per_px'] * gap_px:
+        if not local <= local_tol + opts['tolerance_per_px'] * gap_px or not local < beat:
             return None
     rays = np.concatenate([cl.rays, piece.rays])
     normal = _fit_plane_fast(rays)
@@ -714,11 +791,12 @@ def _merge(camera: CameraModel, pieces: List[_Piece], opts) -> List[_Cluster]:
         if c:
             # cheap tests first: plane normals close; the piece's ends and middle near the plane;
             # spans along the great circle overlapping or close
-            probe = piece.rays[[0, len(piece.rays) // 2, -1]]
             cand = np.nonzero(np.abs(N[:c] @ piece.normal) >= cos_max)[0]
             if cand.size:
-                off = np.max(np.abs(N[cand] @ probe.T), axis=1) * piece.density
-                cand, off = cand[off <= opts['merge_tolerance_px']], off[off <= opts['merge_tolerance_px']]
+                probe = piece.rays[[0, len(piece.rays) // 2, -1]]
+                off = np.abs(N[cand] @ probe.T).max(axis=1) * piece.density
+                near = off <= opts['merge_tolerance_px']
+                cand, off = cand[near], off[near]
             if cand.size:
                 phi = np.arctan2(piece.rays @ E2[cand].T, piece.rays @ E1[cand].T) - Cc[None, cand]
                 phi = np.mod(phi + np.pi, 2 * np.pi) - np.pi
@@ -727,7 +805,7 @@ def _merge(camera: CameraModel, pieces: List[_Piece], opts) -> List[_Cluster]:
                               -overlap <= gap_max)
                 cand = cand[ok]
             for k in cand:
-                found = _try_merge(clusters[k], piece, opts)
+                found = _try_merge(clusters[k], piece, opts, best_local)
                 if found is not None and found[0] < best_local:
                     best, (best_local, best_normal) = k, found
                     if best_local < 0.5 * opts['duplicate_px']:
@@ -765,16 +843,22 @@ def _thin(pts: np.ndarray, min_d: float) -> np.ndarray:
 
 def _finish(camera: CameraModel, cl: _Cluster, image: ImageId, opts) -> Optional[Curve]:
     pts, rays, phi, strength = cl.points, cl.rays, cl.phi, cl.strength
+    # too short already: thinning leaves out points, which only shortens the path (a margin
+    # over the rounding of the two sums); most clusters, single short pieces, end here
+    if _path_length(pts) < opts['min_length_px'] * (1.0 - 1e-9):
+        return None
     # thin out duplicates (overlapping views see the same edge): keep points >= 0.6 spacing apart
     min_d = 0.6 * opts['spacing_px']
     keep = _thin(pts, min_d)
     pts, rays, phi, strength = pts[keep], rays[keep], phi[keep], strength[keep]
     if len(pts) < opts['min_points']:
         return None
-    res, normal = plane_residual_px(camera, pts, rays=rays)
     length = _path_length(pts)
+    if length < opts['min_length_px']:
+        return None
+    res, normal = plane_residual_px(camera, pts, rays=rays)
     rms = _rms(res)
-    if length < opts['min_length_px'] or not rms <= _tolerance(opts, length):
+    if not rms <= _tolerance(opts, length):
         return None
     views = tuple(sorted({p.view for p in cl.parts}))
     main = max(cl.parts, key=lambda p: len(p.points)).view

@@ -44,8 +44,10 @@ STILL_CAMERA_SHARE = 0.5
 """When more than this share of the curves are static, the camera did not move: nothing is dropped."""
 
 
-def _gradients(image) -> np.ndarray:
-    """(2, H, W) float32 brightness gradient (grey levels per px) of a grey or BGR image, lightly smoothed."""
+def image_gradients(image) -> np.ndarray:
+    """(2, H, W) float32 brightness gradient (grey levels per px) of a grey or BGR image, lightly
+    smoothed: what ``static_curves`` samples, and keeps in its ``gradients`` dict (a caller may
+    fill the dict ahead, e.g. while it detects curves in other threads)."""
     grey = np.asarray(image)
     if grey.ndim == 3:
         grey = cv2.cvtColor(grey[..., :3], cv2.COLOR_BGR2GRAY)
@@ -101,7 +103,7 @@ def static_curves(curves: Sequence, images, gradients: Optional[dict] = None) ->
     cache = {} if gradients is None else gradients
     for key in keys:
         if key not in cache:
-            cache[key] = _gradients(images[key])
+            cache[key] = image_gradients(images[key])
     gradients = {key: cache[key] for key in keys}
     # every curve's points and normals in one array, each image sampled once along all of them
     # (the per-point sampling is the same as curve by curve)
