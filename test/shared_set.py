@@ -53,6 +53,6 @@ def run_evaluate_command() -> EvaluateRun:
         computation = RecordedComputation(patch, evaluate, 'evaluate')
         computation.record()
         status, out, err = run_main_alone(argv_of(EVALUATE_COMMAND))
-    assert len(computation.calls) == 1, 'the command computed its evaluation once'
+    assert len(computation.calls) == 1, f'the command computed its evaluation once (exit status {status}: {err})'
     computation.monkeypatch = None  # its own has been undone: replays use the test's
     return EvaluateRun(status, out, '\n'.join(err), computation)
