@@ -36,7 +36,7 @@ class EvaluateRun:
 
     @property
     def result(self):
-        """The EvaluationResult the command printed."""
+        """The Evaluation (core evaluate()'s result) the command printed."""
         return self.computation.calls[-1][3]
 
     def replay(self, monkeypatch):
