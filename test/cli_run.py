@@ -1,5 +1,7 @@
 """The CLI run in-process, as the tests of its commands call it."""
+import contextlib
 import copy
+import io
 import re
 
 import numpy as np
@@ -16,6 +18,18 @@ def run_main(args, capsys):
         status = exc.code
     captured = capsys.readouterr()
     return status, captured.out, captured.err.strip().splitlines()
+
+
+def run_main_alone(args):
+    """run_main without capsys, for fixtures wider than a test (module, session): (exit status,
+    stdout, stderr lines)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            status = main(args)
+        except SystemExit as exc:
+            status = exc.code
+    return status, out.getvalue(), err.getvalue().strip().splitlines()
 
 
 NUMBER = re.compile(r'-?\d+(\.\d+)?(e-?\d+)?')
@@ -83,16 +97,20 @@ class RecordedComputation:
             return result
         self.monkeypatch.setattr(self.module, self.name, recording)
 
-    def replay(self):
+    def replay(self, monkeypatch=None, progress=True):
+        """``monkeypatch``: that of the test whose calls are replayed (default: the recording
+        one's; a session fixture records with its own). ``progress=False``: a call recorded
+        without a callback, replayed to calls that must pass none either."""
         args0, kwargs0, reports, result = self.calls[-1]
-        assert reports, 'replay() needs a recorded call that reported progress'
+        assert reports or not progress, 'replay() needs a recorded call that reported progress'
 
         def replaying(*args, progress=None, **kwargs):
             assert _same_arguments(args, args0) and _same_arguments(kwargs, kwargs0), \
                 f'{self.name} called with other arguments than the recorded call'
+            assert progress is None or reports, f'{self.name} asked for progress the recorded call did not report'
             self.replayed += 1
             if progress is not None:
                 for report in reports:
                     progress(report)
             return copy.deepcopy(result)
-        self.monkeypatch.setattr(self.module, self.name, replaying)
+        (monkeypatch or self.monkeypatch).setattr(self.module, self.name, replaying)

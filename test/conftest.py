@@ -10,6 +10,8 @@ import os
 import sys
 from pathlib import Path
 
+import pytest
+
 # The tests mirror the package (test/core/zeroshot/test_solver.py tests
 # zeroshot_calib_ros/core/zeroshot/solver.py; docs/architecture.md, "Where the tests are"). Without
 # __init__.py files pytest puts test/ (this file's directory: the helpers, ros_peer.py, scenes.py...)
@@ -44,25 +46,38 @@ else:
 # ZEROSHOT_SHARD=k/n (1 <= k <= n): the k-th of n disjoint sets of whole modules (module-scoped
 # fixtures are computed once), balanced by MODULE_SECONDS; `make test` runs the ROS-free tests of
 # each environment as two such processes at the same time (one alone would be the longest chain).
-MODULE_SECONDS = {  # a module's run time, roughly (--durations=0 on 2 cores); the others: 1 s
-    'test_cli_refine.py': 90, 'test_evaluation.py': 104, 'test_readme.py': 86, 'test_spec_consistency.py': 46,
-    'test_detect.py': 41, 'test_calibration_report.py': 41, 'test_cli_output.py': 25, 'test_lens_prior.py': 35,
-    'test_cli_calibrate_checks.py': 33, 'test_image_region.py': 31, 'test_online_refinement.py': 30,
-    'test_board_fit.py': 28, 'test_calibration_input_checks.py': 28, 'test_static_curves.py': 26,
-    'test_cli_fuzz.py': 25, 'test_cli_files.py': 18, 'test_real_photos.py': 17, 'test_readme_claims.py': 17,
-    'test_calibration_file_fuzz.py': 15, 'test_cli.py': 14, 'test_models.py': 12, 'test_calibration.py': 12,
-    'test_wide_fov.py': 11, 'test_refine.py': 10,
+MODULE_SECONDS = {  # a module's CPU seconds (user + sys, its subprocesses included) on .venv, roughly; the others: 1 s
+    'test_cli_refine.py': 54, 'test_evaluation.py': 52, 'test_lens_prior.py': 40, 'test_cli_calibrate_checks.py': 36,
+    'test_board_fit.py': 36, 'test_readme.py': 29, 'test_detect.py': 28, 'test_calibration_input_checks.py': 27,
+    'test_cli_output.py': 26, 'test_cli.py': 24, 'test_cli_fuzz.py': 21, 'test_cli_files.py': 20,
+    'test_calibration_report.py': 20, 'test_online_refinement.py': 19, 'test_spec_consistency.py': 18,
+    'test_calibration_file_fuzz.py': 18, 'test_image_region.py': 14, 'test_refine.py': 12, 'test_real_photos.py': 12,
+    'test_calibration.py': 11, 'test_readme_claims.py': 10, 'test_models.py': 10, 'test_static_curves.py': 9,
+    'test_architecture.py': 5, 'test_zero_shot.py': 4, 'test_wide_fov.py': 3, 'test_rectify.py': 3,
+    'test_corners_fuzz.py': 2, 'test_gate_stability.py': 2,
 }
 
 
+TOGETHER = [('test_evaluation.py', 'test_readme.py')]
+"""Modules that check the computation of one session fixture (shared_set_evaluation, below): kept
+in one shard, so that it runs once."""
+
+
 def shards(names, n):
-    """``names`` (module file names) in ``n`` disjoint lists, the costliest first to the least loaded."""
+    """``names`` (module file names) in ``n`` disjoint lists, the costliest first to the least
+    loaded; the modules of a TOGETHER group as one."""
+    units = []
+    for name in names:
+        unit = [m for m in next((g for g in TOGETHER if name in g), (name,)) if m in names]
+        if unit not in units:
+            units.append(unit)
+    cost = [sum(MODULE_SECONDS.get(m, 1) for m in unit) for unit in units]
     parts = [[] for _ in range(n)]
     load = [0.0] * n
-    for name in sorted(names, key=lambda m: (-MODULE_SECONDS.get(m, 1), m)):
+    for c, unit in sorted(zip(cost, units), key=lambda cu: (-cu[0], cu[1])):
         k = min(range(n), key=lambda i: (load[i], i))
-        parts[k].append(name)
-        load[k] += MODULE_SECONDS.get(name, 1)
+        parts[k].extend(unit)
+        load[k] += c
     return parts
 
 
@@ -96,3 +111,13 @@ def pytest_report_header(config):
         header += f'; shard {SHARD} of the modules'
 
     return header
+
+
+@pytest.fixture(scope='session')
+def shared_set_evaluation():
+    """docs/calibration.md's evaluate command on the shared data set (24 images, every single-shot
+    run: the costliest computation of the suite), run once per process in-process and recorded
+    (shared_set.EvaluateRun): test_readme.py compares its output with the page, test_evaluation.py
+    checks its result and replays it to other runs of the CLI on the same inputs."""
+    from shared_set import run_evaluate_command
+    return run_evaluate_command()

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cli_run import run_main
+from cli_run import RecordedComputation, run_main, run_main_alone
 from zeroshot_calib_ros.core import CameraCalibration
 
 REPO = Path(__file__).resolve().parents[2]
@@ -44,11 +44,20 @@ def spec_line(out):
 
 # -- 1 and 2: a spec the corners contradict ----------------------------------------------------------
 
+@pytest.fixture(scope='module')
+def right_spec_on_one_view():
+    """(JSON record, stderr lines) of calibrate --json on left-0000 with the authors' FOVs: checked
+    by the next test, and the image alone of test_copies_of_one_view_count_once_and_do_not_shrink_the_error_bar."""
+    status, out, err = run_main_alone(['calibrate', str(DATA / 'left-0000.png'), *RIGHT_SPEC, '--json'])
+    assert status == 0, err
+    return json.loads(out), err
+
+
 @needs_data
-def test_the_right_spec_on_one_real_view_is_adopted_and_agrees(capsys):
+def test_the_right_spec_on_one_real_view_is_adopted_and_agrees(right_spec_on_one_view):
     """The guard of the contradiction test: the authors' FOVs on left-0000 are adopted, agree, and
     give f within 6 % of the authors' 290 px (one view)."""
-    record, err = calibrate_json(capsys, str(DATA / 'left-0000.png'), *RIGHT_SPEC)
+    record, err = right_spec_on_one_view
     assert record['accepted'] is True and record['fit']['spec_agrees'] is True
     assert record['warning'] == [] and not any('contradict' in line for line in err)
     assert record['f'] == pytest.approx(290.0, rel=0.06)
@@ -58,15 +67,22 @@ def test_the_right_spec_on_one_real_view_is_adopted_and_agrees(capsys):
 @needs_data
 @pytest.mark.parametrize('spec', [['--hfov', '60', '--vfov', '40'], ['--hfov', '180.8', '--vfov', '10']],
                          ids=['60x40', '180.8x10'])
-def test_a_spec_the_corners_contradict_is_never_accepted_nor_said_to_agree(tmp_path, capsys, spec):
+def test_a_spec_the_corners_contradict_is_never_accepted_nor_said_to_agree(tmp_path, capsys, monkeypatch, spec):
     """A 60 x 40 degree spec (or 180.8 x 10) on one view of the 180-degree lens: not accepted, the
     JSON's warning and the text say the corners contradict the spec, no error bar is claimed for
     the camera written (the spec it comes from is contradicted), exit status 3 as any refused result
     (`accepted: false`, the zero-shot camera written, as the gate's refusals), and the file and one
     stderr line say that it holds the zero-shot camera."""
+    from zeroshot_calib_ros.core.estimation import board_fit
     out_yaml = tmp_path / 'camera.yaml'
+    # this run's board fit is recorded and replayed to the text run below, which asks for the same
+    # one: the two check what the CLI says of it (cli_run.RecordedComputation)
+    fit = RecordedComputation(monkeypatch, board_fit, 'fit_board')
+    fit.record()
     record, err = calibrate_json(capsys, str(DATA / 'left-0000.png'), *spec, '--yaml', str(out_yaml),
                                  status=NOT_ADOPTED)
+    assert len(fit.calls) == 1
+    fit.replay(progress=False)
     assert record['accepted'] is False
     assert record['fit']['spec_agrees'] is False
     assert any('contradict' in w for w in record['warning']), record['warning']
@@ -81,7 +97,7 @@ def test_a_spec_the_corners_contradict_is_never_accepted_nor_said_to_agree(tmp_p
     assert len(notices) == 1 and 'contradict' in notices[0]
     assert notices[0].endswith(f'{out_yaml} holds the zero-shot camera from the spec (exit status 3)')
     status, out, _ = run_main(['calibrate', str(DATA / 'left-0000.png'), *spec], capsys)
-    assert status == NOT_ADOPTED
+    assert status == NOT_ADOPTED and fit.replayed == 1
     assert 'agrees' not in spec_line(out) and 'DISAGREES' in spec_line(out)
     assert next(x for x in out.splitlines() if x.startswith('method')).startswith('method    zero-shot kept')
     assert 'error bar -' in out
@@ -90,10 +106,10 @@ def test_a_spec_the_corners_contradict_is_never_accepted_nor_said_to_agree(tmp_p
 # -- 3: duplicate views ------------------------------------------------------------------------------
 
 @needs_data
-def test_copies_of_one_view_count_once_and_do_not_shrink_the_error_bar(tmp_path, capsys):
+def test_copies_of_one_view_count_once_and_do_not_shrink_the_error_bar(tmp_path, capsys, right_spec_on_one_view):
     """Five copies of left-0000.png (other names, same pixels), and the same path given twice:
     one view, a note naming the copies, the same uncertainty as the image alone."""
-    alone, _ = calibrate_json(capsys, str(DATA / 'left-0000.png'), *RIGHT_SPEC)
+    alone, _ = right_spec_on_one_view
     copies = []
     for k in range(5):
         copies.append(tmp_path / f'copy-{k}.png')

@@ -236,12 +236,16 @@ def test_calibrate_reports_each_image_searched_for_the_board(tmp_path, capsys):
 
 # -- evaluate: plain names beside the paper's ----------------------------------------------------------
 
-def test_evaluate_gives_every_column_a_plain_name(corners_file, capsys):
+def test_evaluate_gives_every_column_a_plain_name(corners_file, capsys, monkeypatch):
     """Every column of both tables (the paper's names) is listed with a plain name beside it, and
-    so are eps and eps_gen (eps_fit); the JSON has the same plain names."""
+    so are eps and eps_gen (eps_fit); the JSON has the same plain names (of the same evaluation:
+    the text run's is recorded and replayed to the JSON run, cli_run.RecordedComputation)."""
     argv = COMMANDS['evaluate'](corners_file)
+    computation = RecordedComputation(monkeypatch, *COMPUTATION['evaluate']())
+    computation.record()
     status, out, err = run_main(argv, capsys)
     assert status == 0, err
+    computation.replay(progress=False)
     lines = out.splitlines()
     key = lines[lines.index("Key to the columns (the paper's name: in plain words)") + 1:]
     key = {line.split('  ')[1].strip(): line.split('  ', 2)[-1].strip() for line in key[:key.index('')]}
@@ -255,6 +259,7 @@ def test_evaluate_gives_every_column_a_plain_name(corners_file, capsys):
     assert key['FC_eq.d.(1)+ZS'] == "checkerboard fit of the paper's fisheye model, 1 image, from zero-shot"
     assert key['Zhang(N)'].endswith(', all 4 images') and key['ZS'].endswith('(no image used)')
     status, out, _ = run_main(argv + ['--json'], capsys)
+    assert computation.replayed == 1
     record = json.loads(out)
     assert record['table4']['fc+zs']['plain_name'] == key['FC_eq.d.(1)+ZS']
     assert record['table3']['fc']['plain_name'] == key['FC_eq.d.']

@@ -14,7 +14,9 @@ import numpy as np
 import pytest
 import yaml
 
+from doc_pages import REPO
 from opencv_reference import board_points, eq20_squared_errors, rms
+from shared_set import EVALUATE_COMMAND, argv_of
 from test_calibration import BOARD, CENTRED, TRUE, spec_of, synthetic_corners
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import KannalaBrandtCamera, PlumbBobCamera, ZeroShotCamera
@@ -164,13 +166,19 @@ def test_shared_set_full_calibration_matches_opencv_fisheye_and_the_authors_foca
 
 
 @pytest.fixture(scope='module')
-def shared_evaluation(shared_corners, authors_camera):
-    """The full protocol: all 24 single-shot runs of every method (the slow test, ~20-40 s)."""
-    from zeroshot_calib_ros.core import CameraSpec
+def shared_evaluation(shared_set_evaluation, shared_corners, authors_camera):
+    """The full protocol: all 24 single-shot runs of every method (the slow one, ~40 s), as
+    docs/calibration.md's command computes it (the spec derived from ost.yaml read as
+    equidistant, which is our authors_camera, as the reference); the one run of it that
+    test_readme.py compares with the page (conftest.shared_set_evaluation). Checked here: it is
+    that evaluation, of our corners, spec and reference."""
+    result = shared_set_evaluation.result
     fovs = authors_camera.fields_of_view()
-    spec = CameraSpec(800, 503, hfov=fovs['hfov'], vfov=fovs['vfov'])
-    return evaluate(shared_corners, spec, name='ros_fisheye_800x503', spec_source='derived from ost.yaml',
-                    reference=authors_camera, reference_source='ost.yaml')
+    assert (result.spec.hfov, result.spec.vfov) == (pytest.approx(fovs['hfov']), pytest.approx(fovs['vfov']))
+    reference = result.reference.camera
+    assert np.allclose(reference.K, authors_camera.K) and np.allclose(reference.D, authors_camera.D)
+    assert np.array_equal(result.corners.corners, shared_corners.corners)
+    return result
 
 
 def test_shared_set_every_single_shot_run_is_counted(shared_evaluation):
@@ -191,17 +199,24 @@ def test_shared_set_single_shot_with_zero_shot_start_beats_zhang_single_shot(sha
     assert studies['fc+zs'].gen_mean < studies['zhang'].gen_mean
 
 
-def test_cli_evaluate_on_the_shared_images(shared_corners, authors_camera, tmp_path, capsys):
+def test_cli_evaluate_on_the_shared_images(shared_set_evaluation, authors_camera, tmp_path, monkeypatch, capsys):
+    """docs/calibration.md's command with --json and --save-corners: the record says what was
+    derived from ost.yaml and computed, the corners file is written. The CLI's own work (finding the
+    boards, deriving the spec, the JSON, the saved corners) runs here; its evaluation is that of the
+    command without the flags, replayed (conftest.shared_set_evaluation), which the CLI must ask for
+    with the same corners, spec and reference (else the replay fails the test)."""
     saved = tmp_path / 'corners.json'
-    assert main(['evaluate', str(DATA / 'left-*.png'), '--spec-from', str(DATA / 'ost.yaml'),
-                 '--spec-from-model', 'equidistant', '--runs', '1', '--json',
-                 '--save-corners', str(saved)]) == 0
+    monkeypatch.chdir(REPO)
+    shared_set_evaluation.replay(monkeypatch)
+    replayed = shared_set_evaluation.computation.replayed
+    assert main(argv_of(EVALUATE_COMMAND) + ['--json', '--save-corners', str(saved)]) == 0
+    assert shared_set_evaluation.computation.replayed == replayed + 1
     record = json.loads(capsys.readouterr().out)
     fovs = authors_camera.fields_of_view()
     assert record['spec'] == {'hfov': pytest.approx(fovs['hfov']), 'vfov': pytest.approx(fovs['vfov'])}
     assert 'ost.yaml' in record['spec_source'] and record['images'] == 24
     assert record['reference']['camera']['fx'] == pytest.approx(authors_camera.fx)
-    assert record['table4']['fc+zs']['runs_total'] == 1
+    assert record['table4']['fc+zs']['runs_total'] == 24
     assert json.loads(saved.read_text())['board'] == {'cols': 8, 'rows': 6, 'square': 0.108}
 
 
