@@ -34,11 +34,24 @@ def executor_choice(environ=os.environ) -> Tuple[str, str]:
                       'single, is used')
 
 
+def _single_threaded_executor(context=None):
+    """rclpy's SingleThreadedExecutor, whose ``__del__`` survives a Ctrl-C inside ``__init__``.
+
+    rclpy 7.1's ``Executor.__del__`` reads ``self._sigint_gc``, which ``__init__`` sets last: a
+    SIGINT that lands earlier left a half-built executor whose collection printed "Exception
+    ignored ... AttributeError" with a traceback on the user's Ctrl-C. A class-level None gives
+    ``__del__`` something to read; a finished ``__init__`` overrides it as before."""
+    import rclpy.executors
+
+    class SingleThreadedExecutor(rclpy.executors.SingleThreadedExecutor):
+        _sigint_gc = None
+
+    return SingleThreadedExecutor(context=context)
+
+
 def create_executor(choice: str, context=None) -> Tuple[object, str, str]:
     """(executor, 'single' or 'events', why) for ``choice``; the default executor when this
     rclpy has no EventsExecutor (said in ``why``)."""
-    import rclpy.executors
-
     why = ''
     if choice == 'events':
         try:
@@ -47,7 +60,7 @@ def create_executor(choice: str, context=None) -> Tuple[object, str, str]:
             why = f'{EXECUTOR_ENV}=events, but this rclpy has no EventsExecutor ({exc}): the default is used'
         else:
             return EventsExecutor(context=context), 'events', f'{EXECUTOR_ENV}=events'
-    return rclpy.executors.SingleThreadedExecutor(context=context), 'single', why
+    return _single_threaded_executor(context), 'single', why
 
 
 def executor_text(name: str, why: str = '') -> str:
