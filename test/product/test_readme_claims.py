@@ -922,6 +922,13 @@ def test_refine_node_figures_are_the_results_file():
     counts = re.findall(r'; (\d+) calibration\(s\) adopted in the run', results)
     assert counts and set(counts) == {'1'} and 'one refined calibration adopted in each run' in text
     assert 'is not better than the camera in use' in results
+    # the worker's CPU and the node's own CPU with refine on and off: the table's ranges
+    rows = [r for r in markdown_rows(results) if r[0].startswith('round')]
+    node_cpu = {case: [float(r[7]) for r in rows if r[0].endswith(case)] for case in ('refine on', 'refine off')}
+    worker = [float(r[8]) for r in rows if r[0].endswith('refine on')]
+    on, off = node_cpu['refine on'], node_cpu['refine off']
+    assert f'worker used {min(worker):.1f}-{max(worker):.1f} s of CPU in each' in text
+    assert max(on) <= max(off) and f'({min(on):.1f}-{max(on):.1f} s against {min(off):.1f}-{max(off):.1f} s)' in text
 
 
 def test_three_channel_padding_figures_are_the_remap_kernels_results():
