@@ -164,6 +164,7 @@ def run_camera(camera: RealCamera, images: int, fov_tolerance: float = 1.0) -> d
             'images': len(paths), 'zero_shot_px': err(result.zero_shot_camera), 'returned_px': err(result.camera),
             'fitted_px': err(result.refined_camera), 'accepted': result.accepted, 'reason': result.reason,
             'lines': result.lines_used, 'seconds_per_image': seconds / len(paths),
+            'uncertainty_px': (result.uncertainty_px or math.nan) * scale,
             'trusted': 'published' if camera.published else f'own, to {camera.trusted_deg:.0f} deg',
             'grid_points': len(pixels)}
 

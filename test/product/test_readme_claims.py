@@ -908,6 +908,24 @@ def test_performance_figures_are_the_results_files():
         assert figure in ' '.join(section.split()), figure
 
 
+def test_real_photo_counts_and_figures_are_the_results_file():
+    """accuracy.md "Refining from ordinary images" (Real photos): how many cameras refine closer,
+    how many are refused or worse, and each camera's zero-shot -> refined figure are the first
+    table of `benchmarks/results/real_photos.md` (benchmarks/real_photos.py)."""
+    text = ' '.join(doc_section('docs/accuracy.md', 'Refining from ordinary images').split())
+    results = (RESULTS / 'real_photos.md').read_text().split('\n## ')[0]
+    better, worse = (int(x) for x in re.search(
+        r'refined at least 10 % closer on (\d+), worse by more than 0.3 px on (\d+)', results).groups())
+    rows = [r for r in markdown_rows(results) if len(r) == 12 and r[0] not in ('camera', '---')]
+    refused = sum(r[8] == 'no' for r in rows)
+    assert len(rows) == 8 and worse == 0
+    assert f'refined at least 10 % closer on {better} (' in text and f'refused on {refused}, worse on none' in text
+    for r in rows:
+        zero_shot, returned = float(r[5]), float(r[6])
+        if r[8] == 'yes' and returned <= 0.9 * zero_shot:
+            assert f'{zero_shot:.1f} -> {returned:.1f} px' in text, r[0]
+
+
 def test_refine_node_figures_are_the_results_file():
     """ros.md "Refining while streaming": the frames lost with refine on and off and the times to the
     refined CameraInfo are `benchmarks/results/refine_node.md` (benchmarks/refine_node.py)."""

@@ -76,3 +76,26 @@ def test_a_hundredth_of_a_degree_on_the_spec_changes_neither_the_lines_nor_the_d
         run = real_photos.run_camera(camera, images=1)
         assert (run['lines'], run['accepted']) == (as_given['lines'], as_given['accepted']), (delta, run, as_given)
         assert run['returned_px'] <= run['zero_shot_px'] + real_photos.WORSE_PX, (delta, run)
+
+
+@pytest.mark.parametrize('name', ['ocam_fisheye2', 'ocam_back'])
+def test_a_soft_image_circle_rim_is_measured_with_an_uncertainty_that_holds_and_refines_honestly(cameras, name):
+    """Two real circular fisheyes (OCamCalib's sample photos, fetched) whose rim fades to black
+    over 10-20 px. The image circle measured in 4 photos, +- 2 sigma, reaches the diameter the
+    table's spec gives (589 / 584 px; measured 570 / 568 px, and stated +- 3.9 px, before the soft
+    rim counted); refined with that spec, the camera returned is no more than 0.3 px (at 1920)
+    worse than zero-shot and its true error is within 2x the uncertainty it states."""
+    import cv2
+    from zeroshot_calib_ros.core.lines.image_region import combine_circles, find_image_region
+    camera = cameras[name]
+    if not camera.photos:
+        pytest.skip(f'{name}: no photos under benchmarks/data/real_cameras: run benchmarks/fetch_real_cameras.py '
+                    '--ocamcalib <a clone of urbste/ImprovedOcamCalib>')
+    frames = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in real_photos.evenly(camera.photos, 4)]
+    circle = combine_circles([find_image_region(f).circle for f in frames])
+    given = real_photos.spec_of(camera).circle_diameter
+    assert circle is not None and abs(circle.diameter - given) <= 2 * (2 * circle.radius_uncertainty_px), \
+        (circle, given)
+    run = real_photos.run_camera(camera, images=4)
+    assert run['returned_px'] <= run['zero_shot_px'] + real_photos.WORSE_PX, run
+    assert run['returned_px'] <= 2 * run['uncertainty_px'], run

@@ -104,7 +104,7 @@ def run(args):
             and not circle_diameter_agrees(spec.circle_diameter, circle):
         circle_warnings.append(
             f'--circle-diameter {spec.circle_diameter:g} px differs from the image circle measured in the images: '
-            f'{circle.diameter:.1f} +- {2 * circle.radius_sigma_px:.1f} px ({measured_in} of {len(images)} images); '
+            f'{circle.diameter:.1f} +- {2 * circle.radius_uncertainty_px:.1f} px ({measured_in} of {len(images)} images); '
             'the given diameter is used, the measured centre only as the principal point: check --circle-diameter, '
             'or leave it out to use the measured diameter')
     solution = solve_zero_shot(spec, 'auto', fov_tolerance=args.fov_tolerance)
@@ -121,7 +121,7 @@ def run(args):
     summary, calibration = _refined_summary(result, spec, solution, args)
     summary['image_circle'] = None if circle is None else {
         'cx': circle.cx, 'cy': circle.cy, 'diameter': circle.diameter,
-        'centre_sigma_px': circle.centre_sigma_px, 'diameter_sigma_px': 2 * circle.radius_sigma_px,
+        'centre_sigma_px': circle.centre_sigma_px, 'diameter_sigma_px': 2 * circle.radius_uncertainty_px,
         'measured_from': measured_in, 'images': len(images),
         'diameter_used': 'measured' if measure_diameter else ('given' if spec.circle_diameter is not None else None)}
     warnings = list(solution.warnings) + circle_warnings  # the spec's FOVs against the zero-shot camera

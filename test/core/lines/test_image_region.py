@@ -121,6 +121,64 @@ def test_measurements_of_several_images_are_combined():
     assert combine_circles([None, None]) is None and combine_circles([a]) is a
 
 
+def soft_rim(fade_px, width=640, height=480, cx=322.0, cy=238.0, radius=220.0, seed=0):
+    """A disc of texture whose light fades linearly to a dark, noisy surround over the last
+    ``fade_px`` px inside ``radius`` (0: a sharp rim), as the rims of some real circular fisheyes
+    do (OCamCalib's: over 10-20 px)."""
+    rng = np.random.default_rng(seed)
+    scene = cv2.GaussianBlur(rng.uniform(60, 230, (height // 8, width // 8)).astype(np.float32), (0, 0), 1.0)
+    scene = cv2.resize(scene, (width, height), interpolation=cv2.INTER_LINEAR)
+    yy, xx = np.mgrid[:height, :width]
+    rho = np.hypot(xx - cx, yy - cy)
+    fade = np.clip((radius - rho) / fade_px, 0, 1) if fade_px > 0 else (rho <= radius).astype(np.float32)
+    image = 10 + (scene - 10) * fade + rng.normal(0, 2, (height, width))
+    return np.clip(cv2.GaussianBlur(image.astype(np.float32), (0, 0), 0.8), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize('fade_px', [12, 20, 30])
+def test_a_soft_rim_states_a_radius_uncertainty_that_spans_it(fade_px):
+    """A rim whose light fades over many pixels has no one radius: the spec's circle may be
+    anywhere across the fade. The stated 2-sigma radius uncertainty reaches both ends of it
+    (a rim this soft, 19 px off the diameter a spec gives, was stated +- 3.9 px before)."""
+    outer = 220.0
+    circle = find_image_circle(soft_rim(fade_px, radius=outer))
+    assert circle is not None and outer - fade_px <= circle.radius <= outer, circle
+    reach = max(outer - circle.radius, circle.radius - (outer - fade_px))
+    assert 2 * circle.radius_uncertainty_px >= reach, (circle, reach)
+    assert circle.radius_uncertainty_px == pytest.approx(math.hypot(circle.radius_sigma_px, circle.edge_sigma_px))
+    assert circle.edge_sigma_px <= 0.5 * fade_px  # and no wider than the fade itself
+
+
+def test_a_sharp_rim_keeps_its_sub_pixel_radius_uncertainty():
+    circle = find_image_circle(soft_rim(0))
+    assert circle is not None and abs(circle.radius - 220.0) < 0.5
+    assert circle.edge_sigma_px == 0 and circle.radius_uncertainty_px < 0.5
+
+
+def test_the_softest_rim_seen_is_the_combined_circles_edge_uncertainty():
+    """Averaging images shrinks where the steepest fall lies, not how soft the lens's rim is."""
+    a = ImageCircle(100.0, 50.0, 200.0, 0.5, 0.5, edge_sigma_px=2.0)
+    b = ImageCircle(100.0, 50.0, 200.0, 0.5, 0.5, edge_sigma_px=5.0)
+    both = combine_circles([a, b, None])
+    assert both.edge_sigma_px == 5.0 and both.radius_sigma_px < 0.5
+    assert both.radius_uncertainty_px == pytest.approx(math.hypot(both.radius_sigma_px, 5.0))
+    assert a.scaled(2.0).edge_sigma_px == 4.0
+
+
+def test_a_soft_rim_widens_the_circle_fov_evidence_and_the_agreement_with_a_given_diameter():
+    """The circle term's FOV sigma and the agreement of a spec's diameter follow the radius
+    uncertainty (soft rim included), not only where the steepest fall lies."""
+    from zeroshot_calib_ros.core.estimation.refine import circle_diameter_agrees, circle_term
+    sharp = ImageCircle(CIRCULAR.cx, CIRCULAR.cy, CIRCULAR.circle_radius, 0.3, 0.3)
+    soft = ImageCircle(CIRCULAR.cx, CIRCULAR.cy, CIRCULAR.circle_radius, 0.3, 0.3, edge_sigma_px=6.0)
+    given = 2 * CIRCULAR.circle_radius + 19.0
+    assert not circle_diameter_agrees(given, sharp) and circle_diameter_agrees(given, soft)
+    spec = CameraSpec(640, 480, circle_diameter=2 * CIRCULAR.circle_radius, circle_fov=190.0)
+    terms = [circle_term(spec, c, 640, 1.0, CIRCULAR) for c in (sharp, soft)]
+    assert len(terms[0].sigma) == len(terms[1].sigma) == 3
+    assert terms[1].sigma[2] > 3 * terms[0].sigma[2]
+
+
 def test_image_circle_term_states_the_principal_point_and_the_circle_fov():
     camera = circular_camera(640, 480, 220.0, 326.0, 236.0)
     term = ImageCircleTerm(326.0, 236.0, 220.0, 0.3, 0.3, 640, circle_fov=190.0, tolerance_deg=1.0,

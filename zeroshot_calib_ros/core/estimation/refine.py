@@ -251,7 +251,7 @@ circle FOV (else the spec's diameter does, and the measurement only the principa
 
 def circle_diameter_agrees(given: float, circle) -> bool:
     """Whether a given circle diameter (px) agrees with a measured ``ImageCircle``."""
-    return abs(given - circle.diameter) <= max(1.0, CIRCLE_AGREEMENT_SIGMAS * 2.0 * circle.radius_sigma_px)
+    return abs(given - circle.diameter) <= max(1.0, CIRCLE_AGREEMENT_SIGMAS * 2.0 * circle.radius_uncertainty_px)
 
 
 def circle_term(spec: CameraSpec, circle, width: int, fov_tolerance_deg: float, reference) -> ImageCircleTerm:
@@ -262,7 +262,7 @@ def circle_term(spec: CameraSpec, circle, width: int, fov_tolerance_deg: float, 
         given = spec.circle_diameter * width / spec.width
         if not circle_diameter_agrees(given, circle):
             circle_fov = None
-    return ImageCircleTerm(circle.cx, circle.cy, circle.radius, circle.centre_sigma_px, circle.radius_sigma_px,
+    return ImageCircleTerm(circle.cx, circle.cy, circle.radius, circle.centre_sigma_px, circle.radius_uncertainty_px,
                            width, circle_fov, fov_tolerance_deg, reference)
 
 

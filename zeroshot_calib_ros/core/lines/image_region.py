@@ -20,7 +20,9 @@ the lens puts the spec's circle FOV.
 3. **Sub-pixel boundary**: radial profiles of the full-resolution image across the coarse circle,
    the steepest fall outward on each (parabolic peak); a robust (Tukey) geometric circle fit,
    twice. Its covariance (residual scatter, neighbouring points counted as correlated, plus a
-   floor ``CIRCLE_FLOOR_PX``) gives ``centre_sigma_px`` and ``radius_sigma_px``.
+   floor ``CIRCLE_FLOOR_PX``) gives ``centre_sigma_px`` and ``radius_sigma_px``. A soft rim
+   (light fading to the surround over many pixels) has no one radius: the width of its fall
+   beyond a sharp edge's is ``edge_sigma_px``, part of ``radius_uncertainty_px``.
 4. **A circle or not**: the fitted edge points must lie on the circle (robust scatter at most
    ``MAX_SCATTER_PX``), cover opposite sides of it (an arc seen on one side only is a dark floor,
    a shadow, the night sky), with a clear step from inside to outside; the image outside the
@@ -74,6 +76,13 @@ all around and inside, is not an image circle)."""
 CIRCLE_FLOOR_PX = 0.25
 """Added in quadrature to the measured sigmas (px): what a sub-pixel edge fit of a real, slightly
 imperfect circle does not beat."""
+SHARP_EDGE_SIGMA_PX = 2.5
+"""Gaussian sigma (px) of a boundary sharp enough that its steepest fall is the circle to a
+fraction of a pixel: our 1 px smoothing and a lens's focus blur (rendered circles: 2.1-2.3 px,
+measured within 0.3 px; the rim of a real 190-degree OCamCalib camera: 1.9-2.3 px). A softer rim
+(a lens whose light fades to the surround over 10-20 px: OCamCalib's other circular cameras,
+5-7 px) has no one radius: the spec's circle may be anywhere across it, so the part of its width
+beyond this is an uncertainty of the radius (``ImageCircle.edge_sigma_px``)."""
 CORRELATION_PX = 4.0
 """Boundary points closer than this along the circle are counted as one (blur, JPEG blocks)."""
 
@@ -94,10 +103,20 @@ class ImageCircle:
     fall_px: float = 0.0
     """How far inside the boundary the brightness is still falling towards it (px): the soft
     edge of a lens's vignetting, which the usable region leaves out too."""
+    edge_sigma_px: float = 0.0
+    """How far the radius is undefined (1 sigma, px) because the rim is soft: the width of the
+    boundary's fall beyond a sharp edge's (``SHARP_EDGE_SIGMA_PX``). Averaging images does not
+    shrink it; ``radius_sigma_px`` (where the steepest fall lies) does not include it."""
 
     @property
     def diameter(self) -> float:
         return 2.0 * self.radius
+
+    @property
+    def radius_uncertainty_px(self) -> float:
+        """1-sigma uncertainty (px) of the radius as the spec's circle: the measurement's and the
+        soft rim's."""
+        return math.hypot(self.radius_sigma_px, self.edge_sigma_px)
 
     @property
     def sigma_px(self) -> float:
@@ -106,7 +125,8 @@ class ImageCircle:
 
     def scaled(self, s: float) -> 'ImageCircle':
         return ImageCircle(self.cx * s, self.cy * s, self.radius * s, self.centre_sigma_px * s,
-                           self.radius_sigma_px * s, self.arc_deg, self.points, self.images, self.fall_px * s)
+                           self.radius_sigma_px * s, self.arc_deg, self.points, self.images, self.fall_px * s,
+                           self.edge_sigma_px * s)
 
 
 @dataclass
@@ -435,7 +455,7 @@ def _fine_circle(grey, smooth, circle, level, dark_small, s) -> tuple:
     centre_sd = float(math.hypot(CIRCLE_FLOOR_PX, max(sd[0], sd[1])))
     radius_sd = float(math.hypot(CIRCLE_FLOOR_PX, sd[2]))
     return ImageCircle(float(cx), float(cy), float(r), centre_sd, radius_sd, arc, int(inl.sum()),
-                       fall_px=fall_px), 'ok'
+                       fall_px=fall_px, edge_sigma_px=_edge_sigma(smooth, cx, cy, r, u)), 'ok'
 
 
 def _step(smooth, pts, u, d):
@@ -465,6 +485,32 @@ def _fall_width(smooth, cx, cy, r, u, reach: float = 24.0) -> float:
     falling = med < edge + 0.9 * (inside - edge)
     k = np.nonzero(~falling)[0]
     return float(-s[k[-1]]) if len(k) else reach
+
+
+def _edge_sigma(smooth, cx, cy, r, u, reach: float = 24.0, step: float = 0.5) -> float:
+    """The soft rim's share of the radius's uncertainty (px): on each radial profile (direction
+    ``u`` outward) the full width at half maximum of the brightness's fall at the boundary, as a
+    Gaussian sigma (/ 2.355), median over the profiles, less a sharp edge's
+    (``SHARP_EDGE_SIGMA_PX``) in quadrature."""
+    s = np.arange(-reach, reach / 2 + step / 2, step)
+    X = cx + (r + s)[None, :] * u[:, 0:1]
+    Y = cy + (r + s)[None, :] * u[:, 1:2]
+    prof = sample(smooth, X.astype(np.float32), Y.astype(np.float32))
+    fall = -(prof[:, 2:] - prof[:, :-2]) / (2 * step)
+    fall = fall[np.isfinite(fall).all(axis=1)]
+    if len(fall) == 0:
+        return 0.0
+    centre = int(np.argmin(np.abs(s[1:-1])))
+    near = max(1, int(round(2.0 / step)))        # the boundary fitted is within a couple of px
+    k = centre - near + np.argmax(fall[:, centre - near:centre + near + 1], axis=1)
+    peak = fall[np.arange(len(fall)), k]
+    below = fall <= 0.5 * peak[:, None]
+    index = np.arange(fall.shape[1])[None, :]
+    lo = np.where(below & (index < k[:, None]), index, -1).max(axis=1)       # -1: still above at the window's end
+    hi = np.where(below & (index > k[:, None]), index, fall.shape[1]).min(axis=1)
+    fwhm = (hi - lo) * step
+    width = float(np.median(fwhm[peak > 0])) if np.any(peak > 0) else 0.0
+    return math.sqrt(max(0.0, (width / 2.355) ** 2 - SHARP_EDGE_SIGMA_PX ** 2))
 
 
 def _disc(shape, cx, cy, r, outside=False) -> np.ndarray:
@@ -512,7 +558,9 @@ def find_image_region(image, margin_px: Optional[float] = None) -> ImageRegion:
 def combine_circles(circles: Sequence[Optional[ImageCircle]]) -> Optional[ImageCircle]:
     """One camera's image circle from several images' measurements (None where an image showed
     none): inverse-variance weighted means; when the measurements scatter more than their
-    sigmas allow (chi^2 per degree of freedom > 1), the sigmas are widened by that factor."""
+    sigmas allow (chi^2 per degree of freedom > 1), the sigmas are widened by that factor. The
+    soft rim's ``edge_sigma_px`` is the largest seen: it is the lens's, which more images do not
+    make sharper."""
     found = [c for c in circles if c is not None]
     if not found:
         return None
@@ -532,4 +580,5 @@ def combine_circles(circles: Sequence[Optional[ImageCircle]]) -> Optional[ImageC
     cy, sy = mean(np.array([c.cy for c in found]), cs)
     r, sr = mean(np.array([c.radius for c in found]), rs)
     return ImageCircle(cx, cy, r, max(sx, sy), sr, max(c.arc_deg for c in found),
-                       sum(c.points for c in found), len(found), max(c.fall_px for c in found))
+                       sum(c.points for c in found), len(found), max(c.fall_px for c in found),
+                       max(c.edge_sigma_px for c in found))
