@@ -14,7 +14,7 @@ import pytest
 
 from cli_run import RecordedComputation, same_result
 from pictures import sheet_panels
-from scenes import dense_rms, render
+from scenes import dense_rms, render, soft_rim
 from zeroshot_calib_ros.cli import main
 from zeroshot_calib_ros.core import CameraCalibration, CameraSpec, solve_zero_shot
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
@@ -303,3 +303,18 @@ def test_progress_is_silent_on_a_pipe_and_shown_with_the_flag(views, capsys, mon
     assert err.startswith('\rzeroshot-calib: refine round 1/2: 1/2 images') and err.count('\r') >= 3, err
     assert '\n' in err and 'fitted' in err.split('\n')[0]
     assert refinement.replayed == 2
+
+
+def test_a_soft_rim_is_measured_with_its_width_and_a_spec_diameter_across_it_is_not_warned_about(tmp_path, capsys):
+    """A circular fisheye whose light fades to black over its last 20 px (as real ones do): the
+    diameter the images give (near the middle of the fade) is printed with an uncertainty that
+    reaches the rim's outer edge, so the spec's diameter of that outer edge is not said to
+    disagree; one far off still is."""
+    path = tmp_path / 'soft_rim.png'
+    cv2.imwrite(str(path), soft_rim(20, radius=220.0))
+    status, out, err = run(capsys, str(path), '--circle-fov', '190', '--circle-diameter', '440', '--json')
+    circle = json.loads(out)['image_circle']
+    assert 2 * circle['diameter_sigma_px'] >= 440 - circle['diameter'] > 0, circle
+    assert 'differs' not in err, err
+    status, out, err = run(capsys, str(path), '--circle-fov', '190', '--circle-diameter', '330', '--json')
+    assert len([line for line in err.splitlines() if '--circle-diameter 330' in line and 'differs' in line]) == 1, err

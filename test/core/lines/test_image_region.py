@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import scenes
+from scenes import soft_rim
 from zeroshot_calib_ros.core.estimation.refine import refine_from_images
 from zeroshot_calib_ros.core.estimation.terms import CIRCLE_CENTRE_SIGMA, FovTerm, ImageCircleTerm
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera, PinholeCamera
@@ -119,20 +120,6 @@ def test_measurements_of_several_images_are_combined():
     # combined sigma is wider than the 0.35 px two agreeing measurements would give
     assert both.centre_sigma_px > 0.5 / math.sqrt(2) + 0.1
     assert combine_circles([None, None]) is None and combine_circles([a]) is a
-
-
-def soft_rim(fade_px, width=640, height=480, cx=322.0, cy=238.0, radius=220.0, seed=0):
-    """A disc of texture whose light fades linearly to a dark, noisy surround over the last
-    ``fade_px`` px inside ``radius`` (0: a sharp rim), as the rims of some real circular fisheyes
-    do (OCamCalib's: over 10-20 px)."""
-    rng = np.random.default_rng(seed)
-    scene = cv2.GaussianBlur(rng.uniform(60, 230, (height // 8, width // 8)).astype(np.float32), (0, 0), 1.0)
-    scene = cv2.resize(scene, (width, height), interpolation=cv2.INTER_LINEAR)
-    yy, xx = np.mgrid[:height, :width]
-    rho = np.hypot(xx - cx, yy - cy)
-    fade = np.clip((radius - rho) / fade_px, 0, 1) if fade_px > 0 else (rho <= radius).astype(np.float32)
-    image = 10 + (scene - 10) * fade + rng.normal(0, 2, (height, width))
-    return np.clip(cv2.GaussianBlur(image.astype(np.float32), (0, 0), 0.8), 0, 255).astype(np.uint8)
 
 
 @pytest.mark.parametrize('fade_px', [12, 20, 30])
