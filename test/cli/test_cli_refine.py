@@ -317,4 +317,8 @@ def test_a_soft_rim_is_measured_with_its_width_and_a_spec_diameter_across_it_is_
     assert 2 * circle['diameter_sigma_px'] >= 440 - circle['diameter'] > 0, circle
     assert 'differs' not in err, err
     status, out, err = run(capsys, str(path), '--circle-fov', '190', '--circle-diameter', '330', '--json')
-    assert len([line for line in err.splitlines() if '--circle-diameter 330' in line and 'differs' in line]) == 1, err
+    warnings = [line for line in err.splitlines() if '--circle-diameter 330' in line and 'differs' in line]
+    assert len(warnings) == 1, err
+    # the warning states the same uncertainty as the record (the rim's width included)
+    sigma = json.loads(out)['image_circle']['diameter_sigma_px']
+    assert f"{json.loads(out)['image_circle']['diameter']:.1f} +- {sigma:.1f} px" in warnings[0], (warnings, sigma)

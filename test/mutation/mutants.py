@@ -2109,4 +2109,20 @@ MUTANTS = [
         behaviour="refine prints a soft rim's measured diameter with an uncertainty that reaches across the rim",
         tests=['test/cli/test_cli_refine.py', '-k', 'soft_rim'],
     ),
+    dict(
+        id='soft-rim-warning-sigma-without-rim',
+        file=f'{CLI}/refine.py',
+        old="            f'{circle.diameter:.1f} +- {2 * circle.radius_uncertainty_px:.1f} px ({measured_in} of {len(images)} images); '",
+        new="            f'{circle.diameter:.1f} +- {2 * circle.radius_sigma_px:.1f} px ({measured_in} of {len(images)} images); '",
+        behaviour="refine's warning on a disagreeing circle diameter states the measurement's whole uncertainty",
+        tests=['test/cli/test_cli_refine.py', '-k', 'soft_rim'],
+    ),
+    dict(
+        id='soft-rim-term-linear-sum',
+        file=f'{PKG}/core/estimation/refine.py',
+        old='    return ImageCircleTerm(circle.cx, circle.cy, circle.radius, circle.centre_sigma_px, circle.radius_uncertainty_px,',
+        new='    return ImageCircleTerm(circle.cx, circle.cy, circle.radius, circle.centre_sigma_px, circle.radius_sigma_px + circle.edge_sigma_px,',
+        behaviour="The circle FOV's evidence takes the radius's two uncertainties in quadrature",
+        tests=['test/core/lines/test_image_region.py', '-k', 'soft_rim'],
+    ),
 ]

@@ -122,13 +122,17 @@ def test_measurements_of_several_images_are_combined():
     assert combine_circles([None, None]) is None and combine_circles([a]) is a
 
 
+@pytest.mark.parametrize('frame', ['4:3', '16:9 clipping the circle'])
 @pytest.mark.parametrize('fade_px', [12, 20, 30])
-def test_a_soft_rim_states_a_radius_uncertainty_that_spans_it(fade_px):
+def test_a_soft_rim_states_a_radius_uncertainty_that_spans_it(fade_px, frame):
     """A rim whose light fades over many pixels has no one radius: the spec's circle may be
     anywhere across the fade. The stated 2-sigma radius uncertainty reaches both ends of it
-    (a rim this soft, 19 px off the diameter a spec gives, was stated +- 3.9 px before)."""
+    (a rim this soft, 19 px off the diameter a spec gives, was stated +- 3.9 px before), also
+    when the frame clips the circle at the top and bottom (profiles leaving the image)."""
     outer = 220.0
-    circle = find_image_circle(soft_rim(fade_px, radius=outer))
+    size = dict(width=640, height=480, cx=322.0, cy=238.0) if frame == '4:3' else \
+        dict(width=640, height=360, cx=321.0, cy=178.0)
+    circle = find_image_circle(soft_rim(fade_px, radius=outer, **size))
     assert circle is not None and outer - fade_px <= circle.radius <= outer, circle
     reach = max(outer - circle.radius, circle.radius - (outer - fade_px))
     assert 2 * circle.radius_uncertainty_px >= reach, (circle, reach)
@@ -164,6 +168,10 @@ def test_a_soft_rim_widens_the_circle_fov_evidence_and_the_agreement_with_a_give
     terms = [circle_term(spec, c, 640, 1.0, CIRCULAR) for c in (sharp, soft)]
     assert len(terms[0].sigma) == len(terms[1].sigma) == 3
     assert terms[1].sigma[2] > 3 * terms[0].sigma[2]
+    # both parts of the radius's uncertainty, in quadrature (as radius_uncertainty_px says)
+    both = ImageCircle(CIRCULAR.cx, CIRCULAR.cy, CIRCULAR.circle_radius, 0.3, 3.0, edge_sigma_px=3.0)
+    direct = ImageCircleTerm(both.cx, both.cy, both.radius, 0.3, math.hypot(3.0, 3.0), 640, 190.0, 1.0, CIRCULAR)
+    assert circle_term(spec, both, 640, 1.0, CIRCULAR).sigma[2] == pytest.approx(direct.sigma[2])
 
 
 def test_image_circle_term_states_the_principal_point_and_the_circle_fov():
