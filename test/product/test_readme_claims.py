@@ -924,6 +924,13 @@ def test_real_photo_counts_and_figures_are_the_results_file():
         zero_shot, returned = float(r[5]), float(r[6])
         if r[8] == 'yes' and returned <= 0.9 * zero_shot:
             assert f'{zero_shot:.1f} -> {returned:.1f} px' in text, r[0]
+    # the same code on Ubuntu 24.04's OpenCV 4.6: the section of that name
+    jazzy = (RESULTS / 'real_photos.md').read_text().split("## The same code with Ubuntu 24.04's OpenCV 4.6")[1]
+    jazzy = jazzy.split('\n## ')[0]
+    better46, worse46 = (int(x) for x in re.search(
+        r'refined at least 10 % closer on (\d+), worse by more than 0.3 px on (\d+)', jazzy).groups())
+    assert worse46 == 0 and "OpenCV 4.6.0" in jazzy
+    assert f"With Ubuntu 24.04's OpenCV 4.6 (what ROS 2 Jazzy users run): closer on {better46}, worse on none" in text
 
 
 def test_refine_node_figures_are_the_results_file():
