@@ -260,6 +260,14 @@ def _ransac_circle(points: np.ndarray, tol: float, w: int, h: int, iterations: i
     return c[0], c[1], c[2], inliers
 
 
+def _radial_profiles(smooth: np.ndarray, cx, cy, r, u: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Samples (n, len(offsets)) of ``smooth`` along the n directions ``u`` (outward unit
+    vectors) at ``offsets`` px from the circle (cx, cy, r); NaN outside the image."""
+    X = cx + (r + offsets)[None, :] * u[:, 0:1]
+    Y = cy + (r + offsets)[None, :] * u[:, 1:2]
+    return sample(smooth, X.astype(np.float32), Y.astype(np.float32))
+
+
 def _boundary_points(smooth: np.ndarray, circle, half_width: float, step: float = 0.5):
     """Sub-pixel boundary points on radial profiles across ``circle``: on each, the steepest fall
     of brightness outward (parabolic peak). Returns (points (n, 2), angles (n,), fall (n,))."""
@@ -275,10 +283,7 @@ def _boundary_points(smooth: np.ndarray, circle, half_width: float, step: float 
     if len(phi) == 0:
         return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
     s = np.arange(-half_width, half_width + step / 2, step)
-    rad = r + s
-    X = cx + rad[None, :] * u[:, 0:1]
-    Y = cy + rad[None, :] * u[:, 1:2]
-    prof = sample(smooth, X.astype(np.float32), Y.astype(np.float32))
+    prof = _radial_profiles(smooth, cx, cy, r, u, s)
     fall = -(prof[:, 2:] - prof[:, :-2]) / (2 * step)      # brightness falling outward, at s[1:-1]
     fall = np.nan_to_num(fall, nan=-np.inf)
     offset, g1, ok = peak_offsets(fall, s[1:-1], step)
@@ -472,9 +477,7 @@ def _fall_width(smooth, cx, cy, r, u, reach: float = 24.0) -> float:
     """Distance (px) inside the boundary at which the median radial profile has come within 10 %
     of its inside level (the level ``reach`` px in): the width of the soft edge."""
     s = np.arange(-reach, 1.0, 1.0)
-    X = cx + (r + s)[None, :] * u[:, 0:1]
-    Y = cy + (r + s)[None, :] * u[:, 1:2]
-    prof = sample(smooth, X.astype(np.float32), Y.astype(np.float32))
+    prof = _radial_profiles(smooth, cx, cy, r, u, s)
     with np.errstate(invalid='ignore'):
         med = np.nanmedian(prof, axis=0) if np.isfinite(prof).any() else np.full(len(s), np.nan)
     if not np.isfinite(med).all():
@@ -493,9 +496,7 @@ def _edge_sigma(smooth, cx, cy, r, u, reach: float = 24.0, step: float = 0.5) ->
     Gaussian sigma (/ 2.355), median over the profiles, less a sharp edge's
     (``SHARP_EDGE_SIGMA_PX``) in quadrature."""
     s = np.arange(-reach, reach / 2 + step / 2, step)
-    X = cx + (r + s)[None, :] * u[:, 0:1]
-    Y = cy + (r + s)[None, :] * u[:, 1:2]
-    prof = sample(smooth, X.astype(np.float32), Y.astype(np.float32))
+    prof = _radial_profiles(smooth, cx, cy, r, u, s)
     fall = -(prof[:, 2:] - prof[:, :-2]) / (2 * step)
     fall = fall[np.isfinite(fall).all(axis=1)]
     if len(fall) == 0:
