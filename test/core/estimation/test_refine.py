@@ -18,10 +18,12 @@ from zeroshot_calib_ros.core.estimation.problem import Problem, robust_factor
 from zeroshot_calib_ros.core.estimation.refine import refine_camera, refine_from_images, zero_shot_camera
 from zeroshot_calib_ros.core.estimation.terms import FovTerm, PrincipalPointPrior
 from zeroshot_calib_ros.core.estimation.zero_shot import zero_shot_start
-from zeroshot_calib_ros.core.estimation.uncertainty import (covariance, pixel_grid, pixel_rms, systematic_covariance,
+from zeroshot_calib_ros.core.estimation.uncertainty import (Uncertainty, covariance, pixel_grid, pixel_rms,
+                                                            rms_over_circle, systematic_covariance,
                                                             zero_shot_uncertainty, zoom_field)
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera, PinholeCamera
 from zeroshot_calib_ros.core.lens.wide_fov import fields_of_view_through_axis
+from zeroshot_calib_ros.core.lines.image_region import ImageCircle
 from zeroshot_calib_ros.core.lines.straightness import StraightnessTerm, smallest_eigenvectors
 from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
 
@@ -95,10 +97,10 @@ def arcs(rng, count, noise=0.3):
     return out
 
 
-def best_rotation_rms(estimate, truth, grid=(33, 19)):
-    """RMS pixel distance over a grid between the truth's pixels and the estimate's projection
-    of the truth's rays after the best rotation (Kabsch, then Gauss-Newton on the pixels)."""
-    pixels = pixel_grid(truth.width, truth.height, grid)
+def best_rotation_rms(estimate, truth, grid=(33, 19), pixels=None):
+    """RMS pixel distance over a grid (or over ``pixels``) between the truth's pixels and the
+    estimate's projection of the truth's rays after the best rotation (Gauss-Newton on the pixels)."""
+    pixels = pixel_grid(truth.width, truth.height, grid) if pixels is None else pixels
     rays = truth.unproject(pixels)
 
     def rot(w):
@@ -213,6 +215,59 @@ def test_robust_loss_matches_scipys():
 
 
 # ---------------------------------------------------------------------------------- uncertainty
+
+def test_pixel_rms_over_an_off_centre_circle_is_the_closed_form_over_its_pixels():
+    """Variance s^2 on f alone over the grid pixels inside a circle centred off the image's
+    centre (a circular fisheye's image circle is seldom centred): the RMS over exactly those
+    pixels, which ``rms_over_circle`` gives again from the error bar itself."""
+    layout = KannalaBrandtLayout(TRUTH, 0)
+    x = layout.x_from(TRUTH)
+    s = 2.0
+    cov = np.diag([s * s, 0.0, 0.0])
+    centre, radius = (W / 2.0 + 90.0, H / 2.0 - 60.0), 300.0
+    px = pixel_grid(W, H)
+    inside = px[np.hypot(px[:, 0] - centre[0], px[:, 1] - centre[1]) <= radius]
+    assert np.array_equal(pixel_grid(W, H, circle_radius=radius, circle_centre=centre), inside)
+    r2 = (inside[:, 0] - TRUTH.cx) ** 2 + (inside[:, 1] - TRUTH.cy) ** 2
+    expected = s * math.sqrt(np.mean(r2)) / TRUTH.fx
+    assert pixel_rms(layout, x, cov, after_rotation=False, circle_radius=radius,
+                     circle_centre=centre) == pytest.approx(expected, rel=1e-4)
+    u = Uncertainty(pixel_rms(layout, x, cov), covariance=cov, layout=layout, x=x)
+    assert rms_over_circle(u, radius, centre) == pytest.approx(
+        pixel_rms(layout, x, cov, circle_radius=radius, circle_centre=centre), rel=1e-9)
+    assert rms_over_circle(u, 10 * W) == pytest.approx(u.rms_px, rel=1e-9)  # a circle around everything
+
+
+def test_a_circular_fisheyes_dark_corners_do_not_decide_the_gate():
+    """A 187 x 134-degree fisheye (a real camera's calibration, 1032 x 778) whose image circle,
+    seen in the images, leaves the corners dark: noisy lines (1 px) inside the circle. The fit
+    may choose order 3, whose camera parts from the order-4 one only in the dark corners, past
+    every line, where the covariance grows without bound too: tens of px over the whole image.
+    Compared with zero-shot over the circle seen (what is imaged), the refined camera, 4x nearer
+    the truth there, is adopted; its error bar over the whole image stays honest."""
+    truth = KannalaBrandtCamera(337.0, 337.0, 543.3, 377.6, 1032, 778, [0.000519, -0.006295, 0.001031, -0.000622])
+    circle = ImageCircle(547.9, 352.1, 516.4, 0.5, 0.5, 180.0, 500, 2)
+    fovs = fields_of_view_through_axis(truth)
+    spec = CameraSpec(truth.width, truth.height, hfov=fovs['hfov'], vfov=fovs['vfov'])
+    grid = pixel_grid(truth.width, truth.height)
+    inside = grid[np.hypot(grid[:, 0] - circle.cx, grid[:, 1] - circle.cy) <= circle.radius]
+
+    def error(camera):  # RMS inside the circle after the best rotation
+        return best_rotation_rms(camera, truth, pixels=inside)
+
+    def keep(px):
+        return np.hypot(px[:, 0] - circle.cx, px[:, 1] - circle.cy) < circle.radius - 10
+
+    for seed in (1, 4):
+        rng = np.random.default_rng(seed)
+        curves = [Curve(c, v) for v in range(4)
+                  for c in line_curves(truth, rng, 25, noise=1.0, keep=keep, max_angle=math.radians(100))]
+        result = refine_camera(spec, curves, image_circle=circle)
+        assert result.accepted, result.reason
+        assert 'over the image circle seen' in result.reason
+        assert error(result.camera) < 0.35 * error(result.zero_shot_camera)
+        assert error(result.camera) < 2 * result.uncertainty_px
+
 
 def test_pixel_rms_of_a_focal_variance_is_the_closed_form():
     """Variance s^2 on f alone: each pixel moves by theta_d s = (r / f) s, r its distance from

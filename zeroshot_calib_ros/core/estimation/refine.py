@@ -59,8 +59,9 @@ from .fit import SOLVE_TOL, LineFit, fit_lines
 from .problem import Problem, jacobian_threads, one_blas_thread
 from .terms import FOV_TOLERANCE_DEG, SHAPE_SIGMA, FovTerm, ImageCircleTerm, PrincipalPointPrior, ShapePrior
 from .uncertainty import (Uncertainty, displacement, image_circle_radius, pixel_grid, probability_other_is_better,
-                          problem_uncertainty)
+                          problem_uncertainty, rms_over_circle)
 from .zero_shot import zero_shot_camera, zero_shot_start  # noqa: F401 (zero_shot_camera: its callers' import)
+from .zoom import REZOOM_MISFIT_PX, rezoom, statement_shape_covariance  # noqa: F401 (REZOOM_MISFIT_PX: docs)
 
 MIN_LINES = 8
 MIN_POINTS = 6
@@ -96,10 +97,8 @@ holds the shape where no line reaches)."""
 
 
 REZOOM = True
-"""The refined camera takes its zoom from the FOVs alone (``rezoom``)."""
-REZOOM_MISFIT_PX = 0.05
-"""Largest radius error (px) of the Kannala-Brandt refit of a re-zoomed camera: the line noise
-floor (``fit.MIN_SIGMA_PX``); a zoom of 1 % costs ~0.03 px."""
+"""The refined camera takes its zoom from the FOVs alone (``zoom.rezoom``), each FOV weighed by
+how well the refined camera's shape is known at its edge (``zoom.statement_shape_covariance``)."""
 SYSTEMATIC_PX = 0.05
 """Every curve may err systematically by this much (px RMS) in a bow and in an S along it
 (``uncertainty.systematic_covariance``): the floor under what lines say through curvature, the
@@ -343,13 +342,17 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     result.principal_point_shift_px = float(math.hypot(refined.cx - zs.cx, refined.cy - zs.cy))
     given_fovs, fov_sigmas = _fov_statements(fov, circle if states_fov else None)
     result.fov_residuals_deg = _fov_residuals(fov, circle if states_fov else None, refined)
-    ref_u, u_layout, u_x = _fit_uncertainty(fit)
+    seen = _seen_circle(image_circle)
+    ref_u, u_layout, u_x, u_jacobian = _fit_uncertainty(fit, seen)
     result.refined_uncertainty_px = ref_u.rms_px
     result.refined_uncertainty = ref_u
     if REZOOM:
         # the zoom from the FOVs alone (the lines' say on it is the model's artefact): after the
         # checks above, which judge the fit as it is
-        refined = rezoom(refined, zoom_terms)
+        top = fit.top_problem if fit.top_problem is not None else fit.problem
+        shape = statement_shape_covariance(top, u_x, u_jacobian, systematic_floor_px(fit.sigma_px), zoom_terms,
+                                           refined, *(seen if seen is not None else (None, None)))
+        refined = rezoom(refined, zoom_terms, shape_covariance=shape)
         result.refined_camera = refined
         result.line_residual_px_after = used_term.rms(refined)
 
@@ -387,13 +390,25 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
         if split:
             return refuse(f'{split}; all images together: {detail}')
         return refuse(detail)
-    # the circle form alone states its error bar over the image circle, the refined camera over the
-    # whole image: no comparison there (as before it had a bar); the other checks still apply
-    if zs_u_px is not None and image_circle_radius(spec) is None and not ref_u.rms_px < zs_u_px:
-        return refuse(f'not more certain than zero-shot: {ref_u.rms_px:.3g} px against {zs_u_px:.3g} px')
+    # the two error bars compared over the same pixels: those of the image circle seen in the images
+    # when there is one (nothing outside it is imaged, ``_seen_circle``), else the whole image; the
+    # circle form alone without a seen circle states zero-shot's over the spec's circle, the refined
+    # camera's over the whole image: no comparison there; the other checks still apply
+    ref_compared, zs_compared = ref_u.rms_px, zs_u_px
+    if seen is not None and zs_u_px is not None:
+        radius, (cx, cy) = seen
+        ref_compared = rms_over_circle(ref_u, radius, (cx, cy))
+        zs_seen = rms_over_circle(zs_u, radius / scale, (cx / scale, cy / scale))
+        zs_compared = None if zs_seen is None or ref_compared is None else zs_seen * scale
+    elif image_circle_radius(spec) is not None:
+        zs_compared = None
+    over = ' over the image circle seen' if seen is not None else ''
+    if zs_compared is not None and not ref_compared < zs_compared:
+        return refuse(f'not more certain than zero-shot{over}: {ref_compared:.3g} px against {zs_compared:.3g} px')
     margin = ZERO_SHOT_MARGIN * width
-    p_better, distance, spread = probability_other_is_better(u_layout, u_x, ref_u.covariance, zs, margin,
-                                                             after_zoom=True)
+    p_better, distance, spread = probability_other_is_better(
+        u_layout, u_x, ref_u.covariance, zs, margin, after_zoom=True,
+        circle_radius=None if seen is None else seen[0], circle_centre=None if seen is None else seen[1])
     result.zero_shot_better_probability, result.zero_shot_distance_px = p_better, distance
     if p_better > MAX_ZERO_SHOT_BETTER:
         return refuse(f'the lines agree with zero-shot: beside the zoom (which only the FOVs fix, for both) the '
@@ -407,6 +422,8 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
                      f'{after:.3g} px RMS (zero-shot {before:.3g} px); uncertainty {ref_u.rms_px:.3g} px '
                      f'(zero-shot {zs_u_px:.3g} px)' if zs_u_px is not None else
                      f'accepted: held-out lines {after:.3g} px RMS (zero-shot {before:.3g} px)')
+    if zs_compared is not None and seen is not None:
+        result.reason += f'; {over.strip()}: {ref_compared:.3g} px against {zs_compared:.3g} px'
     return result
 
 
@@ -429,63 +446,6 @@ def _fov_residuals(fov: Optional[FovTerm], circle: Optional[ImageCircleTerm], ca
     return out
 
 
-def rezoom(camera: KannalaBrandtCamera, fov, samples: int = 256) -> KannalaBrandtCamera:
-    """``camera`` composed with the zoom of its rays r -> (s x, s y, z) that fits the FOVs best
-    (least squares in tolerances), as a Kannala-Brandt camera again (f and k1..k4 refitted to
-    the zoomed radius function, linear least squares; the principal point is kept).
-
-    The zoom maps planes through the centre to planes through the centre, so every straight
-    line stays straight under it: lines cannot tell the zoom, only the FOVs can
-    (``uncertainty.zoom_field``). The joint fit still lets the lines pull it wherever
-    Kannala-Brandt's four coefficients follow a zoom imperfectly, and what the pull then follows
-    is the lines' small systematic errors, not the lens: on the line benchmark a rendered
-    action camera came out with every FOV 0.45 degrees wide of its exact spec and 0.8 px worse
-    than zero-shot, for lines straightened twice as well. Returns ``camera`` unchanged when the
-    refit would misrepresent the zoomed camera (by more than ``REZOOM_MISFIT_PX``) or the FOVs
-    gain nothing. ``fov``: a ``FovTerm`` or a list of terms that state the zoom (the FOVs, the
-    measured image circle's FOV)."""
-    from scipy.optimize import minimize_scalar
-    terms = [t for t in (fov if isinstance(fov, (list, tuple)) else [fov]) if t is not None]
-    if not terms:
-        return camera
-
-    def chi2(cam):
-        total = 0.0
-        for t in terms:
-            r = t.residuals(cam) / t.sigma
-            total += float(r @ r)
-        return total
-
-    top = camera.max_field_angle()
-    top = min(top if math.isfinite(top) else camera.theta_max, camera.theta_max)
-    theta = np.linspace(0.0, top, samples)[1:]
-    basis = np.stack([theta ** (2 * j + 1) for j in range(5)], axis=1)
-
-    def zoomed(s):
-        inner = np.arctan2(s * np.sin(theta), np.cos(theta))
-        if not np.all(inner <= camera.theta_max):
-            return None, math.inf
-        radius = camera.fx * camera.theta_d(inner)
-        a = np.linalg.lstsq(basis, radius, rcond=None)[0]
-        if not a[0] > 0:
-            return None, math.inf
-        fitted = KannalaBrandtCamera(a[0], a[0], camera.cx, camera.cy, camera.width, camera.height, a[1:] / a[0])
-        return fitted, float(np.max(np.abs(basis @ a - radius)))
-
-    def cost(s):
-        fitted, _ = zoomed(s)
-        if fitted is None:
-            return 1e12
-        return chi2(fitted)
-
-    before = chi2(camera)
-    best = minimize_scalar(cost, bounds=(0.9, 1.1), method='bounded', options={'xatol': 1e-7})
-    fitted, misfit = zoomed(best.x)
-    if fitted is None or misfit > REZOOM_MISFIT_PX or not best.fun < before:
-        return camera
-    return fitted
-
-
 def _disagreeing_images(images: List, inliers: np.ndarray) -> List:
     """Images (with at least 3 curves) that lost more than half their curves while the rest lost
     at most a quarter."""
@@ -504,8 +464,24 @@ def _disagreeing_images(images: List, inliers: np.ndarray) -> List:
     return out
 
 
-def _fit_uncertainty(fit: LineFit):
-    """(Uncertainty, layout, x) of the chosen camera under the highest-order model.
+def _seen_circle(image_circle):
+    """(radius, (cx, cy)) of the image circle measured in the images, or None (none seen): the
+    pixels where the refined camera and zero-shot are compared (their error bars, the chance that
+    zero-shot is the nearer) and where a lower order's bias is measured. Nothing outside it is
+    imaged: there a circular fisheye's dark corners lie past the last ray any line shows, where
+    the Kannala-Brandt polynomials of two orders part by tens of pixels and a covariance grows
+    without bound (a real 187 x 134-degree camera: its order-3 camera 12.6 px from the order-4
+    one over the whole image, 1.2 px inside its circle; 14.8 px of covariance over the whole
+    image, 2.5 px inside). The error bar a user is given stays over the whole image."""
+    if image_circle is None:
+        return None
+    return float(image_circle.radius), (float(image_circle.cx), float(image_circle.cy))
+
+
+def _fit_uncertainty(fit: LineFit, seen=None):
+    """(Uncertainty, layout, x, jacobian) of the chosen camera under the highest-order model (RMS over the
+    whole image; a lower order's bias measured inside the image circle ``seen`` when given,
+    ``_seen_circle``).
 
     A lower order's own covariance is overconfident wherever its restriction stands in for
     evidence: with k1 alone free, lines "determine" the zoom that only the FOVs can (a lens of
@@ -515,18 +491,22 @@ def _fit_uncertainty(fit: LineFit):
     top = fit.top_problem if fit.top_problem is not None else fit.problem
     layout = top.layout
     x = layout.x_from(fit.camera)
-    u = problem_uncertainty(top, x, clustered=CLUSTERED_COVARIANCE, systematic_px=systematic_floor_px(fit.sigma_px))
+    radius, centre = (None, None) if seen is None else seen
+    J = top.jacobian(x)
+    u = problem_uncertainty(top, x, J, clustered=CLUSTERED_COVARIANCE, systematic_px=systematic_floor_px(fit.sigma_px))
     if u.rms_px is None or fit.top_solution is None or fit.order == layout.order:
-        return u, layout, x
-    rays = fit.camera.unproject(pixel_grid(fit.camera.width, fit.camera.height))
+        return u, layout, x, J
+    rays = fit.camera.unproject(pixel_grid(fit.camera.width, fit.camera.height, circle_radius=radius,
+                                           circle_centre=centre))
     rays = rays[np.all(np.isfinite(rays), axis=1)]
     bias = displacement(fit.camera, layout.camera(fit.top_solution.x), rays)
     bias_rms = float(np.sqrt(np.nanmean(np.sum(bias * bias, axis=1))))
     total = math.hypot(u.rms_px, bias_rms)
     scale = (total / u.rms_px) ** 2 if u.rms_px > 0 else 1.0
     u = Uncertainty(total, f'{u.reason}, order {fit.order} of {layout.order}: {bias_rms:.3g} px from the '
-                    f'highest order added', covariance=u.covariance * scale, names=u.names, layout=layout, x=x)
-    return u, layout, x
+                    f'highest order added{" (inside the image circle seen)" if seen is not None else ""}',
+                    covariance=u.covariance * scale, names=u.names, layout=layout, x=x)
+    return u, layout, x, J
 
 
 def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, priors) -> Optional[str]:

@@ -92,7 +92,9 @@ class Uncertainty:
     to the error in quadrature, weighted: the lens shapes of real lenses of a single FOV
     (``lens_shape_spread``), a lower order's bias (its distance from the highest order's camera)."""
     circle_radius: Optional[float] = None
-    """When set, ``rms_px`` is over the image circle of this radius (px, centred on the image)."""
+    """When set, ``rms_px`` is over the image circle of this radius (px), centred on
+    ``circle_centre`` (None: on the image's centre)."""
+    circle_centre: Optional[Tuple[float, float]] = None
 
     @property
     def fov_part_px(self) -> Optional[float]:
@@ -102,14 +104,16 @@ class Uncertainty:
         return math.sqrt(max(self.rms_px ** 2 - self.lens_shape_px ** 2, 0.0))
 
 
-def pixel_grid(width: int, height: int, grid=GRID, circle_radius: Optional[float] = None) -> np.ndarray:
+def pixel_grid(width: int, height: int, grid=GRID, circle_radius: Optional[float] = None,
+               circle_centre: Optional[Tuple[float, float]] = None) -> np.ndarray:
     """grid[0] x grid[1] pixels from (0, 0) to (W, H) inclusive (the lens benchmark's grid);
     with ``circle_radius``, only those inside the image circle of that radius (px) centred on
-    the image (a circular fisheye's image: the rest is dark)."""
+    ``circle_centre`` (default the image's centre): a circular fisheye's image, the rest is dark."""
     u, v = np.meshgrid(np.linspace(0.0, width, grid[0]), np.linspace(0.0, height, grid[1]))
     pixels = np.stack([u.ravel(), v.ravel()], axis=-1)
     if circle_radius is not None:
-        pixels = pixels[np.hypot(pixels[:, 0] - width / 2.0, pixels[:, 1] - height / 2.0) <= circle_radius]
+        cx, cy = (width / 2.0, height / 2.0) if circle_centre is None else circle_centre
+        pixels = pixels[np.hypot(pixels[:, 0] - cx, pixels[:, 1] - cy) <= circle_radius]
     return pixels
 
 
@@ -150,14 +154,14 @@ def _rotation(w):
 
 
 def pixel_jacobian(layout, x, grid=GRID, after_rotation: bool = True, after_zoom: bool = False,
-                   circle_radius: Optional[float] = None):
+                   circle_radius: Optional[float] = None, circle_centre: Optional[Tuple[float, float]] = None):
     """(A, rays): d pixel / d x (2N x p, rows x0 y0 x1 y1 ...) of the grid pixels' rays held fixed,
     projected off the three rotation fields when ``after_rotation`` (module docstring), and off
-    the zoom field too when ``after_zoom`` (``zoom_field``); ``circle_radius``: the pixels of
-    the image circle only (``pixel_grid``)."""
+    the zoom field too when ``after_zoom`` (``zoom_field``); ``circle_radius``, ``circle_centre``:
+    the pixels of the image circle only (``pixel_grid``)."""
     x = np.asarray(x, dtype=float)
     camera = layout.camera(x)
-    pixels = pixel_grid(camera.width, camera.height, grid, circle_radius)
+    pixels = pixel_grid(camera.width, camera.height, grid, circle_radius, circle_centre)
     rays = camera.unproject(pixels)
     rays = rays[np.all(np.isfinite(rays), axis=1)]
     if len(rays) == 0:
@@ -196,10 +200,10 @@ def zoom_field(camera, rays, base=None, eps: float = 1e-6) -> np.ndarray:
 
 
 def pixel_rms(layout, x, cov: np.ndarray, grid=GRID, after_rotation: bool = True,
-              circle_radius: Optional[float] = None) -> float:
-    """RMS over ``grid`` (inside ``circle_radius`` if given) of the 1-sigma pixel displacement
-    under ``cov`` (module docstring)."""
-    A, _ = pixel_jacobian(layout, x, grid, after_rotation, circle_radius=circle_radius)
+              circle_radius: Optional[float] = None, circle_centre: Optional[Tuple[float, float]] = None) -> float:
+    """RMS over ``grid`` (inside the circle ``circle_radius``, ``circle_centre`` if given) of the
+    1-sigma pixel displacement under ``cov`` (module docstring)."""
+    A, _ = pixel_jacobian(layout, x, grid, after_rotation, circle_radius=circle_radius, circle_centre=circle_centre)
     if len(A) == 0:
         return float('nan')
     return float(math.sqrt(max(np.einsum('ij,jk,ik->', A, cov, A), 0.0) / (len(A) // 2)))
@@ -226,7 +230,8 @@ def displacement(reference, other, rays, iterations: int = 10) -> np.ndarray:
 
 
 def probability_other_is_better(layout, x, cov: np.ndarray, other, margin_px: float = 0.0,
-                                grid=GRID, after_zoom: bool = False) -> Tuple[float, float, float]:
+                                grid=GRID, after_zoom: bool = False, circle_radius: Optional[float] = None,
+                                circle_centre: Optional[Tuple[float, float]] = None) -> Tuple[float, float, float]:
     """Under the posterior N(x, cov), the probability that camera ``other`` is closer to the true
     camera than the estimate by more than ``margin_px`` (RMS over the grid after the best rotation).
 
@@ -238,9 +243,10 @@ def probability_other_is_better(layout, x, cov: np.ndarray, other, margin_px: fl
     ``after_zoom``: both fields compared off the zoom too (``zoom_field``): where two cameras
     are fitted to the same FOVs, the FOVs' error moves both along the zoom alike, so the
     posterior's spread there (most of it when lines are the only other evidence: lines cannot
-    see the zoom) says nothing about which of the two is nearer the truth."""
+    see the zoom) says nothing about which of the two is nearer the truth. ``circle_radius``,
+    ``circle_centre``: over the pixels of the image circle only (``pixel_grid``)."""
     from scipy.special import ndtr  # the normal CDF (scipy.stats takes a second and a half to import)
-    A, rays = pixel_jacobian(layout, x, grid, True, after_zoom)
+    A, rays = pixel_jacobian(layout, x, grid, True, after_zoom, circle_radius, circle_centre)
     camera = layout.camera(x)
     d = displacement(camera, other, rays).ravel()
     if after_zoom:
@@ -373,11 +379,13 @@ def systematic_covariance(problem: Problem, x, J: np.ndarray, floor_px: float) -
 
 def problem_uncertainty(problem: Problem, x, jacobian: Optional[np.ndarray] = None,
                         clustered: bool = False, systematic_px: float = 0.0,
-                        circle_radius: Optional[float] = None) -> Uncertainty:
+                        circle_radius: Optional[float] = None,
+                        circle_centre: Optional[Tuple[float, float]] = None) -> Uncertainty:
     """Uncertainty of ``problem`` at its solution ``x`` (Jacobian recomputed unless given);
     ``clustered``: the covariance robust to errors shared within a curve
     (``clustered_covariance``); ``systematic_px`` > 0: every curve may also err by this much in
-    a bow and an S (``systematic_covariance``)."""
+    a bow and an S (``systematic_covariance``); ``circle_radius``, ``circle_centre``: the error
+    bar over that image circle only (``pixel_grid``)."""
     J = problem.jacobian(x) if jacobian is None else jacobian
     if systematic_px > 0:
         cov, reason = systematic_covariance(problem, x, J, systematic_px)
@@ -385,12 +393,12 @@ def problem_uncertainty(problem: Problem, x, jacobian: Optional[np.ndarray] = No
         cov, reason = clustered_covariance(problem, x, J) if clustered else covariance(J)
     if cov is None:
         return Uncertainty(None, reason, names=tuple(problem.layout.names))
-    rms = pixel_rms(problem.layout, x, cov, circle_radius=circle_radius)
+    rms = pixel_rms(problem.layout, x, cov, circle_radius=circle_radius, circle_centre=circle_centre)
     if not math.isfinite(rms):
         return Uncertainty(None, 'no grid pixel has a ray under the camera', covariance=cov,
                            names=tuple(problem.layout.names))
     return Uncertainty(rms, reason, covariance=cov, names=tuple(problem.layout.names), layout=problem.layout,
-                       x=np.asarray(x, dtype=float).copy(), circle_radius=circle_radius)
+                       x=np.asarray(x, dtype=float).copy(), circle_radius=circle_radius, circle_centre=circle_centre)
 
 
 def zero_shot_problem(spec: CameraSpec, fov_tolerance_deg: float = FOV_TOLERANCE_DEG, solution=None):
@@ -553,6 +561,35 @@ class UncertaintyMap:
         return float(np.sqrt(np.mean(self.sigma_px[seen] ** 2))) if np.any(seen) else float('nan')
 
 
+def _pixel_variances(u: Uncertainty, grid, circle_radius, circle_centre):
+    """(camera, rays, variance): for each grid pixel with a ray (inside the circle if given), the
+    trace of A_i Sigma A_i^T plus the weighted squared displacements of ``u.spread_cameras``."""
+    layout, x = u.layout, np.asarray(u.x, dtype=float)
+    camera = layout.camera(x)
+    A, rays = pixel_jacobian(layout, x, grid, True, circle_radius=circle_radius, circle_centre=circle_centre)
+    if len(rays) == 0:
+        return camera, rays, np.empty(0)
+    A3 = A.reshape(-1, 2, x.size)
+    variance = np.einsum('nij,jk,nik->n', A3, u.covariance, A3)
+    for other, weight in u.spread_cameras:
+        d = displacement(camera, other, rays)
+        variance = variance + weight * np.sum(d * d, axis=1)
+    return camera, rays, variance
+
+
+def rms_over_circle(u: Uncertainty, circle_radius: float, circle_centre: Optional[Tuple[float, float]] = None,
+                    grid=GRID) -> Optional[float]:
+    """``u.rms_px`` stated over another image circle (radius and centre in ``u``'s image pixels):
+    the RMS of the same 1-sigma pixel error (``uncertainty_map``'s) over the grid pixels inside
+    it. What a camera's error bar and a refined camera's bar over the circle seen in the images
+    are compared on. None when ``u`` has no covariance or layout, or no grid pixel is inside."""
+    if u.rms_px is None or u.covariance is None or u.layout is None or u.x is None:
+        return None
+    _, _, variance = _pixel_variances(u, grid, circle_radius, circle_centre)
+    variance = variance[np.isfinite(variance)]
+    return float(math.sqrt(max(float(np.mean(variance)), 0.0))) if len(variance) else None
+
+
 def uncertainty_map(u: Uncertainty, grid=GRID) -> Optional[UncertaintyMap]:
     """The pixel-by-pixel form of ``u`` on a grid[0] x grid[1] grid: at each pixel the root of
     trace(A_i Sigma A_i^T), A_i its rows of the pixel Jacobian off the rotations (as ``pixel_rms``),
@@ -562,12 +599,10 @@ def uncertainty_map(u: Uncertainty, grid=GRID) -> Optional[UncertaintyMap]:
     covariance or no layout (no error bar, or one not from a fit)."""
     if u.rms_px is None or u.covariance is None or u.layout is None or u.x is None:
         return None
-    layout, x = u.layout, np.asarray(u.x, dtype=float)
-    camera = layout.camera(x)
     cols, rows = grid
+    camera, rays, variance = _pixel_variances(u, grid, u.circle_radius, u.circle_centre)
     pixels = pixel_grid(camera.width, camera.height, grid).reshape(rows, cols, 2)
     sigma2 = np.full((rows, cols), np.nan)
-    A, rays = pixel_jacobian(layout, x, grid, True, circle_radius=u.circle_radius)
     if len(rays) == 0:
         return UncertaintyMap(camera.width, camera.height, pixels, sigma2)
     # pixel_jacobian keeps the grid pixels with a finite ray and Jacobian: find them again by
@@ -576,10 +611,5 @@ def uncertainty_map(u: Uncertainty, grid=GRID) -> Optional[UncertaintyMap]:
     ci = np.rint(at[:, 0] / camera.width * (cols - 1)).astype(int)
     ri = np.rint(at[:, 1] / camera.height * (rows - 1)).astype(int)
     inside = (ci >= 0) & (ci < cols) & (ri >= 0) & (ri < rows)
-    A3 = A.reshape(-1, 2, x.size)
-    variance = np.einsum('nij,jk,nik->n', A3, u.covariance, A3)
-    for other, weight in u.spread_cameras:
-        d = displacement(camera, other, rays)
-        variance = variance + weight * np.sum(d * d, axis=1)
     sigma2[ri[inside], ci[inside]] = np.maximum(variance[inside], 0.0)
     return UncertaintyMap(camera.width, camera.height, pixels, np.sqrt(sigma2))
