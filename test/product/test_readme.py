@@ -183,7 +183,7 @@ def test_the_readme_refine_quick_start_finds_the_principal_point_and_cuts_the_er
     of the makers' Kalibr calibration (zero-shot's, the image centre, is 14 px off), and the error
     against that calibration (RMS over the image at 1920 px wide after the best rotation, the
     metric of benchmarks/real_photos.py) is the README's: zero-shot 6.8 px (to 0.05), refined at
-    most 2.5 px (the README: 1.7 with OpenCV 5, 2.1 with OpenCV 4.6's line detections)."""
+    most 2.5 px (the README: 1.6 with OpenCV 5, 2.0 with OpenCV 4.6's line detections)."""
     assert REFINE_COMMAND in ' '.join(README.split())
     (tmp_path / 'benchmarks').symlink_to(REPO / 'benchmarks')
     result = cli(REFINE_COMMAND, cwd=tmp_path)

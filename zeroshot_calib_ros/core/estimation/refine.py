@@ -20,15 +20,18 @@ prior and the shape prior. The refined camera replaces the zero-shot one only wh
 - held-out curves (every ``HOLD_OUT_EVERY``-th straight curve, left out of a second fit) are
   explained better than by the zero-shot camera;
 - its uncertainty (``uncertainty.problem_uncertainty``) is lower than zero-shot's
-  (``uncertainty.zero_shot_uncertainty``);
+  (``uncertainty.zero_shot_uncertainty``), both over the image circle seen in the images when one
+  is (``_seen_circle``: nothing outside it is imaged), else over the whole image;
 - and the zero-shot camera is unlikely to be the better one: under the fit's posterior, the
   probability that zero-shot is nearer the truth by more than ``ZERO_SHOT_MARGIN`` (0.3 px at
   1920 px wide, RMS over the image after the best rotation and the best zoom) is at most
-  ``MAX_ZERO_SHOT_BETTER`` (``uncertainty.probability_other_is_better``). The posterior mean is
+  ``MAX_ZERO_SHOT_BETTER`` (``uncertainty.probability_other_is_better``; over the image circle
+  seen when there is one). The posterior mean is
   better on average, but where the lines pin the camera loosely (a nearly rectilinear lens:
   lines then see neither zoom nor principal point) and zero-shot lies inside the posterior's
   spread, zero-shot is as likely to be the nearer one. The zoom (``uncertainty.zoom_field``)
-  is left out of the comparison: lines cannot see it, both cameras take it from the same FOVs,
+  is left out of the comparison: lines cannot see it, both cameras take it from the same FOVs
+  (the refined camera each FOV as far as its shape is known at that FOV's edge: ``zoom.py``),
   and the FOVs' error moves both alike, so the posterior's spread along it (most of the
   refined camera's uncertainty) says nothing about which is nearer. The posterior is the one
   with a systematic-error floor per curve (``SYSTEMATIC_PX``), without which a rectilinear
