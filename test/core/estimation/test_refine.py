@@ -8,6 +8,7 @@ no camera straightens. References: the known camera, closed forms (equidistant F
 image of a line, d pixel / d f), and scipy's own robust loss.
 """
 import math
+import re
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ from zeroshot_calib_ros.core.estimation.refine import refine_camera, refine_from
 from zeroshot_calib_ros.core.estimation.terms import FovTerm, PrincipalPointPrior
 from zeroshot_calib_ros.core.estimation.zero_shot import zero_shot_start
 from zeroshot_calib_ros.core.estimation.uncertainty import (Uncertainty, covariance, pixel_grid, pixel_rms,
-                                                            rms_over_circle, systematic_covariance,
+                                                            problem_uncertainty, rms_over_circle, systematic_covariance,
                                                             zero_shot_uncertainty, zoom_field)
 from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera, PinholeCamera
 from zeroshot_calib_ros.core.lens.wide_fov import fields_of_view_through_axis
@@ -236,6 +237,15 @@ def test_pixel_rms_over_an_off_centre_circle_is_the_closed_form_over_its_pixels(
     assert rms_over_circle(u, radius, centre) == pytest.approx(
         pixel_rms(layout, x, cov, circle_radius=radius, circle_centre=centre), rel=1e-9)
     assert rms_over_circle(u, 10 * W) == pytest.approx(u.rms_px, rel=1e-9)  # a circle around everything
+    problem = Problem(layout, [PrincipalPointPrior(W, H), FovTerm({'hfov': 150.0}, W, H)])
+    bar = problem_uncertainty(problem, x, circle_radius=radius, circle_centre=centre)
+    assert (bar.circle_radius, bar.circle_centre) == (radius, centre)  # what its error map is drawn over
+
+
+FISHEYE_187 = KannalaBrandtCamera(337.0, 337.0, 543.3, 377.6, 1032, 778, [0.000519, -0.006295, 0.001031, -0.000622])
+"""A real 187 x 134-degree fisheye's calibration (OCamCalib's sample "Fisheye1", our chessboard fit)."""
+FISHEYE_CIRCLE = ImageCircle(547.9, 352.1, 516.4, 0.5, 0.5, 180.0, 500, 2)
+"""Its image circle as the images show it: off the image's centre, the corners outside."""
 
 
 def test_a_circular_fisheyes_dark_corners_do_not_decide_the_gate():
@@ -245,28 +255,78 @@ def test_a_circular_fisheyes_dark_corners_do_not_decide_the_gate():
     every line, where the covariance grows without bound too: tens of px over the whole image.
     Compared with zero-shot over the circle seen (what is imaged), the refined camera, 4x nearer
     the truth there, is adopted; its error bar over the whole image stays honest."""
-    truth = KannalaBrandtCamera(337.0, 337.0, 543.3, 377.6, 1032, 778, [0.000519, -0.006295, 0.001031, -0.000622])
-    circle = ImageCircle(547.9, 352.1, 516.4, 0.5, 0.5, 180.0, 500, 2)
-    fovs = fields_of_view_through_axis(truth)
-    spec = CameraSpec(truth.width, truth.height, hfov=fovs['hfov'], vfov=fovs['vfov'])
-    grid = pixel_grid(truth.width, truth.height)
-    inside = grid[np.hypot(grid[:, 0] - circle.cx, grid[:, 1] - circle.cy) <= circle.radius]
+    grid = pixel_grid(FISHEYE_187.width, FISHEYE_187.height)
+    inside = grid[np.hypot(grid[:, 0] - FISHEYE_CIRCLE.cx, grid[:, 1] - FISHEYE_CIRCLE.cy) <= FISHEYE_CIRCLE.radius]
 
     def error(camera):  # RMS inside the circle after the best rotation
-        return best_rotation_rms(camera, truth, pixels=inside)
+        return best_rotation_rms(camera, FISHEYE_187, pixels=inside)
+
+    for seed in (1, 4):
+        spec, curves, circle, _ = _fisheye_behind_its_circle(seed)
+        result = refine_camera(spec, curves, image_circle=circle)
+        assert result.accepted, result.reason
+        assert error(result.camera) < 0.35 * error(result.zero_shot_camera)
+        assert error(result.camera) < 2 * result.uncertainty_px
+        # the two bars the reason compares are those over the circle seen (off the image's centre)
+        refined_px, zero_shot_px = _circle_pair(result.reason)
+        centre = (circle.cx, circle.cy)
+        for stated, bar in ((refined_px, result.refined_uncertainty), (zero_shot_px, result.zero_shot_uncertainty)):
+            assert stated == pytest.approx(rms_over_circle(bar, circle.radius, centre), rel=0.006)
+        if result.order < 4:  # a lower order's bias is measured where the images show something
+            assert result.refined_uncertainty.reason.endswith('(inside the image circle seen)')
+
+
+def _circle_pair(reason):
+    """(refined, zero-shot) px of the reason's "over the image circle seen: X px against Y px"."""
+    found = re.search(r'over the image circle seen: ([\d.]+) px against ([\d.]+) px', reason)
+    assert found, reason
+    return float(found.group(1)), float(found.group(2))
+
+
+def _fisheye_behind_its_circle(seed, factor=1):
+    """The 187 x 134-degree fisheye's spec (hfov, vfov), 25 noisy (1 px) lines per view in 4 views
+    inside its circle, and the circle, in images ``factor`` times the spec's size (a sensor mode,
+    a resized stream: the same camera scaled)."""
+    truth, circle = FISHEYE_187, FISHEYE_CIRCLE
+    fovs = fields_of_view_through_axis(truth)
+    spec = CameraSpec(truth.width, truth.height, hfov=fovs['hfov'], vfov=fovs['vfov'])
 
     def keep(px):
         return np.hypot(px[:, 0] - circle.cx, px[:, 1] - circle.cy) < circle.radius - 10
+    rng = np.random.default_rng(seed)
+    curves = [Curve(factor * c, v) for v in range(4)
+              for c in line_curves(truth, rng, 25, noise=1.0, keep=keep, max_angle=math.radians(100))]
+    return spec, curves, circle.scaled(factor), (truth.width * factor, truth.height * factor)
 
-    for seed in (1, 4):
-        rng = np.random.default_rng(seed)
-        curves = [Curve(c, v) for v in range(4)
-                  for c in line_curves(truth, rng, 25, noise=1.0, keep=keep, max_angle=math.radians(100))]
-        result = refine_camera(spec, curves, image_circle=circle)
-        assert result.accepted, result.reason
-        assert 'over the image circle seen' in result.reason
-        assert error(result.camera) < 0.35 * error(result.zero_shot_camera)
-        assert error(result.camera) < 2 * result.uncertainty_px
+
+def test_images_at_twice_the_specs_size_compare_the_same_bars_in_their_own_pixels():
+    """The fisheye behind its circle seen in images twice the spec's size (a sensor mode, a
+    resized stream): the same decision, and the two bars the gate compares over the circle seen
+    are twice those at the spec's size (zero-shot's is stated at the spec's size and scaled)."""
+    spec, curves, circle, _ = _fisheye_behind_its_circle(1)
+    at_spec = refine_camera(spec, curves, image_circle=circle)
+    spec, curves, circle, (width, height) = _fisheye_behind_its_circle(1, factor=2)
+    doubled = refine_camera(spec, curves, width, height, image_circle=circle)
+    assert at_spec.accepted and doubled.accepted, (at_spec.reason, doubled.reason)
+    for one, two in zip(_circle_pair(at_spec.reason), _circle_pair(doubled.reason)):
+        assert two == pytest.approx(2 * one, rel=0.02)
+
+
+def test_the_gate_weighs_zero_shot_over_the_circle_seen(monkeypatch):
+    """The chance that zero-shot is the nearer camera is taken over the image circle seen, with its
+    own centre (off the image's), not over the image or a centred circle."""
+    from zeroshot_calib_ros.core.estimation import refine as refine_module
+    calls = []
+    real = refine_module.probability_other_is_better
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs)
+        return real(*args, **kwargs)
+    monkeypatch.setattr(refine_module, 'probability_other_is_better', spy)
+    spec, curves, circle, _ = _fisheye_behind_its_circle(1)
+    refine_camera(spec, curves, image_circle=circle)
+    assert calls and all(c['circle_radius'] == circle.radius and c['circle_centre'] == (circle.cx, circle.cy)
+                         for c in calls)
 
 
 def test_pixel_rms_of_a_focal_variance_is_the_closed_form():
