@@ -25,7 +25,8 @@ SPEC_FLAGS = ['--hfov', '172', '--vfov', '97', '--dfov', '198']  # TRUE's FOVs, 
 SOLVE_KEYS = {'width', 'height', 'model', 'omega', 'f', 'cx', 'cy', 'K', 'distortion_model', 'D', 'fit_error_px',
               'hfov', 'vfov', 'dfov', 'P', 'warning'}
 REFINEMENT_KEYS = {'accepted', 'reason', 'images_used', 'lines_used', 'line_residual_px_before',
-                   'line_residual_px_after', 'coverage', 'principal_point_shift_px', 'curves_static'}
+                   'line_residual_px_after', 'coverage', 'principal_point_shift_px', 'curves_static',
+                   'curves_bowed'}
 
 
 @pytest.fixture(scope='module')

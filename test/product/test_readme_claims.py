@@ -1147,6 +1147,20 @@ def test_line_refinement_figures_are_the_results_file():
     assert nuisances[7] == '0' and nuisances[8] == '100 % / 100 %'
     assert (f'refined {n_median} / {n_p90} px, {nuisances[6].split(" (")[0].replace(" / ", " of ")} accepted, none '
             'worse than zero-shot by more than 0.3 px') in text
+    # one frame with a bonnet in it (room, street): the bow test's rows
+    one_frame = [r for r in markdown_rows((RESULTS / 'line_refinement.md').read_text())
+                 if len(r) == 11 and r[0] == 'images' and r[1].startswith('1 rendered 960 px view per lens')]
+    assert len(one_frame) == 2 and all(r[8] == '100 % / 100 %' for r in one_frame)
+    for r, flags in zip(one_frame, ('`--views 1 --nuisances all`', '`--scene street --views 1 --nuisances all`')):
+        o_median, o_p90 = r[4].strip('*').split(' / ')
+        accepted = r[6].split(' (')[0].replace(' / ', ' of ')
+        worse = re.fullmatch(r'1 \(([\d.]+) -> ([\d.]+) px\)', r[7])
+        said = (f'{flags}): refined {o_median} / {o_p90} px, {accepted} accepted, '
+                + ('none worse than zero-shot by more than 0.3 px' if r[7] == '0' else
+                   f'1 accepted worse than zero-shot by more than 0.3 px'))
+        assert said in text, said
+        if worse is not None:
+            assert f'{worse.group(1)} -> {worse.group(2)} px' in text
     for scene in (rows['street'], rows['corridor']):
         s_median, s_p90 = scene[4].strip('*').split(' / ')
         assert scene[3] == room[3] and scene[7] == '0' and scene[8] == '100 % / 100 %'

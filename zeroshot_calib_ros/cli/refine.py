@@ -129,6 +129,7 @@ def run(args):
     summary['uncertainty_px'] = result.uncertainty_px if result.accepted else result.zero_shot_uncertainty_px
     summary['refinement'] = json_safe({k: getattr(result, k) for k in REFINE_KEYS})
     summary['refinement']['curves_static'] = len(result.static_curves)
+    summary['refinement']['curves_bowed'] = result.curves_bowed
     if getattr(result, 'zero_shot_uncertainty', None) is not None and result.zero_shot_uncertainty.warning \
             and not result.accepted:
         warnings.append(result.zero_shot_uncertainty.warning)
@@ -158,6 +159,9 @@ def run(args):
         if result.static_curves:
             print(f'left out  {len(result.static_curves)} curves at the same pixels in the images while the scene '
                   "moved (the vehicle's or robot's own body, lens dirt): not the scene's lines")
+        if result.curves_bowed:
+            print(f'left out  {result.curves_bowed} curves bowing toward the image centre (a bonnet, a body\'s edge): '
+                  'this lens bows straight lines the other way')
         print(f"refined   {'yes' if result.accepted else 'no'}: {result.reason}")
         if args.yaml:
             print(f'wrote {args.yaml}')

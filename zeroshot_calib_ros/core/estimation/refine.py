@@ -3,7 +3,9 @@
 ``refine_camera(spec, curves, width, height)``: the zero-shot camera (``solve_zero_shot``, 'auto',
 fitted to Kannala-Brandt k1..k4) is the start and the reference; the fit (``fit.fit_lines``)
 weighs the curves against the spec's FOVs (tolerance ``fov_tolerance_deg``), the principal-point
-prior and the shape prior. The refined camera replaces the zero-shot one only when
+prior and the shape prior; curves that bow toward the principal point by more than a straight
+line could under a plausible camera (a bonnet, a body's edge: ``core.lines.bowing``) are left out
+before it, judged against zero-shot. The refined camera replaces the zero-shot one only when
 
 - there are at least ``MIN_LINES`` curves that are straight under one camera, spread over the
   image: at least ``MIN_COVERAGE`` of the cells of an 8 x 6 grid over the image, and reaching
@@ -56,6 +58,7 @@ from typing import Callable, Dict, List, Optional, Sequence
 import numpy as np
 
 from ..lens.models import KannalaBrandtCamera
+from ..lines.bowing import bows_the_wrong_way
 from ..lines.straightness import StraightnessTerm, curve_image, curve_points
 from ..zeroshot.spec import CameraSpec
 from .fit import SOLVE_TOL, LineFit, fit_lines
@@ -171,6 +174,10 @@ class Refinement:
     """RMS over the image of refined - zero-shot pixels after the best rotation."""
     curves_given: int = 0
     curves_rejected: int = 0
+    """Curves not used: not straight under the fitted camera, or bowing the wrong way."""
+    curves_bowed: int = 0
+    """Of those, the curves left out before the fit because they bow toward the principal point by
+    more than a line could under a plausible camera (``core.lines.bowing``): a bonnet, a body's edge."""
     order: Optional[int] = None
     """Number of Kannala-Brandt coefficients the lines moved (0..4)."""
     sigma_px: Optional[float] = None
@@ -293,8 +300,17 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     zs_u_px = None if zs_u.rms_px is None else zs_u.rms_px * scale
     warnings = [zs_u.warning] if zs_u.warning else []
     kept, index, images = _prepare(curves, width, height)
+    # a curve bowing toward the principal point is no line of this lens (a bonnet, a body's edge):
+    # judged against zero-shot, the plausible camera, before any fit can bend toward it
+    bowed = bows_the_wrong_way(kept, zs, width)
+    if bowed.any():
+        kept = [p for p, b in zip(kept, bowed) if not b]
+        index = index[~bowed]
+        images = [g for g, b in zip(images, bowed) if not b]
     result = Refinement(zs, False, '', zs_u_px, zs_u_px, 0, 0, None, None, 0.0, 0.0, zero_shot_camera=zs,
                         curves_given=len(curves), warnings=warnings, zero_shot_uncertainty=zs_u)
+    result.curves_bowed = int(bowed.sum())
+    result.curves_rejected = result.curves_bowed
     result.used = np.zeros(len(curves), dtype=bool)
     result.curves = list(curves)
     result.image_circle = image_circle
@@ -336,7 +352,7 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     inliers = fit.inliers
     result.used[index[inliers]] = True
     result.lines_used = int(inliers.sum())
-    result.curves_rejected = int(len(kept) - inliers.sum())
+    result.curves_rejected = int(len(kept) - inliers.sum()) + result.curves_bowed
     used_images = [images[i] for i in np.nonzero(inliers)[0]]
     result.images_used = len(set(used_images))
     used_term = term.subset(inliers)

@@ -2,7 +2,8 @@
 
 Under a header with the verdict (ACCEPTED in green, REFUSED in red, and the reason) and a legend,
 one panel per image in the order given, each labelled with its number, name and its counts of
-curves: used by the fit (green), rejected (red), left out for staying put across the images
+curves: used by the fit (green), rejected (red: not straight under the fitted camera, or bowing
+toward the principal point, ``core.lines.bowing``), left out for staying put across the images
 (orange; the vehicle's or robot's own body, lens dirt). Below them the first image rectified
 with the zero-shot camera and with the refined camera (the one written when accepted, the one
 refused otherwise; none when no fit was made), side by side, with one rectified camera (the
@@ -106,7 +107,7 @@ def render_debug_sheet(images: Sequence[np.ndarray], names: Sequence[str], resul
     static = list(getattr(result, 'static_curves', None) or [])
     totals = (int(used_mask.sum()), int(len(curves) - used_mask.sum()), len(static))
     legend(canvas, MARGIN, y + 6, [(f'used by the fit ({totals[0]})', CURVE_USED),
-                                   (f'rejected: not straight under the fitted camera ({totals[1]})', CURVE_REJECTED),
+                                   (f'rejected: not straight, or bowing toward the centre ({totals[1]})', CURVE_REJECTED),
                                    (f'left out: stayed put across the images ({totals[2]})', CURVE_STATIC)], 0.45)
     y = MARGIN + header_h + GAP
 
