@@ -256,3 +256,17 @@ def test_the_cli_reports_the_bowed_count_not_every_rejected_curve(bonnet_frame, 
     assert any(line.startswith('left out  3 curves bowing toward') for line in out.splitlines()), out
     status, out, err = run_main(['refine', path, *flags, '--json'], capsys)
     assert json.loads(out)['refinement']['curves_bowed'] == 3
+
+
+def test_each_curve_is_judged_alone_whatever_lies_beside_it():
+    # all curves are judged in one pass: a short curve, a degenerate one (one point repeated) and a
+    # curve the camera cannot see (NaN rays) beside a bonnet leave its verdict, and theirs, alone
+    rng = np.random.default_rng(8)
+    arc = bonnet(radius=0.5 * W, half_width=0.2 * W) + rng.normal(0, 0.2, (40, 2))
+    line = line_curves(TRUTH, rng, 1, noise=0.2)[0]
+    short = arc[:5]
+    same = np.repeat([[300.0, 200.0]], 12, axis=0)
+    unseen = np.full((12, 2), np.nan)
+    curves = [short, arc, same, line, unseen, arc[::-1]]
+    assert bows_the_wrong_way(curves, TRUTH, W).tolist() == [False, True, False, False, False, True]
+    assert bows_the_wrong_way(curves[::-1], TRUTH, W).tolist() == [True, False, False, False, True, False]

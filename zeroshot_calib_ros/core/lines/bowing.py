@@ -46,66 +46,93 @@ of the curve's points about a parabola)."""
 MIN_BOW_POINTS = 8
 
 
+def _bows(points: np.ndarray, sizes: np.ndarray, centre) -> tuple:
+    """``bow_toward`` of many curves at once: ``points`` (N, 2) the curves one after another,
+    ``sizes`` their numbers of points (each at least 4); (bow, se, half) arrays, one per curve."""
+    starts = np.r_[0, np.cumsum(sizes)[:-1]]
+    owner = np.repeat(np.arange(len(sizes)), sizes)
+    mean = np.add.reduceat(points, starts, axis=0) / sizes[:, None]
+    d = points - mean[owner]
+    scatter = np.stack([np.add.reduceat(d[:, 0] * d[:, 0], starts), np.add.reduceat(d[:, 0] * d[:, 1], starts),
+                        np.add.reduceat(d[:, 1] * d[:, 1], starts)], axis=1)
+    # the principal direction of each curve's 2 x 2 scatter (closed form), and its normal
+    angle = 0.5 * np.arctan2(2.0 * scatter[:, 1], scatter[:, 0] - scatter[:, 2])
+    along = np.stack([np.cos(angle), np.sin(angle)], axis=1)
+    across = np.stack([-along[:, 1], along[:, 0]], axis=1)
+    t = np.sum(d * along[owner], axis=1)
+    y = np.sum(d * across[owner], axis=1)
+    t_max, t_min = np.maximum.reduceat(t, starts), np.minimum.reduceat(t, starts)
+    half = 0.5 * (t_max - t_min)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        t = t / half[owner]  # a well-conditioned parabola; its quadratic coefficient is then the bow
+        powers = np.stack([np.add.reduceat(t ** k, starts) for k in range(5)], axis=1)
+        normal = np.stack([powers[:, [0, 1, 2]], powers[:, [1, 2, 3]], powers[:, [2, 3, 4]]], axis=1)
+        moments = np.stack([np.add.reduceat(y * t ** k, starts) for k in range(3)], axis=1)
+        ok = np.isfinite(normal).all(axis=(1, 2)) & (half > 0) & (np.abs(np.linalg.det(np.where(
+            np.isfinite(normal), normal, 0.0))) > 1e-12)
+        inverse = np.full_like(normal, np.nan)
+        inverse[ok] = np.linalg.inv(normal[ok])
+        coef = np.einsum('cij,cj->ci', inverse, moments)
+        fitted = coef[owner, 0] + coef[owner, 1] * t + coef[owner, 2] * t * t
+        sigma = np.sqrt(np.add.reduceat((y - fitted) ** 2, starts) / (sizes - 3))
+        se = sigma * np.sqrt(inverse[:, 2, 2])
+        tm = 0.5 * (t_max + t_min) / half
+    middle = mean + along * (tm * half)[:, None] + across * (coef[:, 0] + coef[:, 1] * tm + coef[:, 2] * tm * tm)[:, None]
+    toward = np.where(np.sum((np.asarray(centre, float) - middle) * across, axis=1) > 0, 1.0, -1.0)
+    bow = np.where(ok, toward * -coef[:, 2], 0.0)
+    return bow, np.where(ok, se, np.inf), half
+
+
 def bow_toward(points: np.ndarray, centre) -> tuple:
     """(bow, its standard error, half the chord), px: how far the middle of the parabola fitted to
     ``points`` (in the frame of their principal direction) lies from the chord between its ends,
     positive when the middle bulges toward ``centre``; its curvature is 2 bow / half^2."""
     p = np.asarray(points, float)
-    mean = p.mean(axis=0)
-    _, _, vt = np.linalg.svd(p - mean, full_matrices=False)
-    along, across = vt[0], vt[1]
-    t = (p - mean) @ along
-    y = (p - mean) @ across
-    half = 0.5 * float(t.max() - t.min())
-    if len(p) < 4 or not half > 0:
-        return 0.0, math.inf, half
-    t = t / half  # a well-conditioned parabola; its quadratic coefficient is then the bow
-    basis = np.stack([np.ones_like(t), t, t * t], axis=1)
-    coef, *_ = np.linalg.lstsq(basis, y, rcond=None)
-    residual = y - basis @ coef
-    sigma = math.sqrt(float(residual @ residual) / (len(t) - 3))
-    try:
-        se = sigma * math.sqrt(float(np.linalg.inv(basis.T @ basis)[2, 2]))
-    except np.linalg.LinAlgError:
-        return 0.0, math.inf, half
-    tm = 0.5 * float(t.max() + t.min())
-    middle = mean + along * tm * half + across * (coef[0] + coef[1] * tm + coef[2] * tm * tm)
-    toward = 1.0 if float(np.dot(np.asarray(centre, float) - middle, across)) > 0 else -1.0
-    return toward * -float(coef[2]), se, half
+    if len(p) < 4:
+        return 0.0, math.inf, 0.0
+    bow, se, half = _bows(p, np.array([len(p)]), centre)
+    return float(bow[0]), float(se[0]), float(half[0])
+
+
+def _predicted_lines(points: np.ndarray, sizes: np.ndarray, camera: CameraModel) -> np.ndarray:
+    """``predicted_line`` of many curves at once (``_bows``' layout)."""
+    starts = np.r_[0, np.cumsum(sizes)[:-1]]
+    owner = np.repeat(np.arange(len(sizes)), sizes)
+    rays = np.asarray(camera.unproject(points), float)
+    rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    normal = np.cross(rays[starts], rays[starts + sizes - 1])
+    norm = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.where(norm > 1e-12, normal / np.where(norm > 1e-12, norm, 1.0), 0.0)
+    n = normal[owner]
+    return np.asarray(camera.project(rays - np.sum(rays * n, axis=1, keepdims=True) * n), float)
 
 
 def predicted_line(points: np.ndarray, camera: CameraModel) -> np.ndarray:
     """The image under ``camera`` of the straight line through the ends of ``points``, at the
     points' own places along it (each point's ray projected onto the plane of the end rays)."""
-    rays = np.asarray(camera.unproject(np.asarray(points, float)), float)
-    rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
-    normal = np.cross(rays[0], rays[-1])
-    norm = np.linalg.norm(normal)
-    if not norm > 1e-12:
-        return np.asarray(points, float)
-    normal /= norm
-    on_plane = rays - np.outer(rays @ normal, normal)
-    return np.asarray(camera.project(on_plane), float)
+    p = np.asarray(points, float)
+    return _predicted_lines(p, np.array([len(p)]), camera)
 
 
 def bows_the_wrong_way(curves: Sequence[np.ndarray], camera: CameraModel, width: int) -> np.ndarray:
     """Module docstring: True for each curve (an (N, 2) array of pixels) that curves toward
-    ``camera``'s principal point by more than a straight line could under a plausible camera."""
+    ``camera``'s principal point by more than a straight line could under a plausible camera.
+    All curves at once: a frame's hundreds of curves cost a few milliseconds."""
     out = np.zeros(len(curves), dtype=bool)
+    judged = [i for i, c in enumerate(curves) if len(c) >= MIN_BOW_POINTS]
+    if not judged:
+        return out
+    arrays = [np.asarray(curves[i], float) for i in judged]
+    sizes = np.array([len(a) for a in arrays])
+    points = np.concatenate(arrays)
     centre = (camera.cx, camera.cy)
-    for i, points in enumerate(curves):
-        points = np.asarray(points, float)
-        if len(points) < MIN_BOW_POINTS:
-            continue
-        with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
-            line = predicted_line(points, camera)
-        if not np.all(np.isfinite(line)):
-            continue
-        bow, se, half = bow_toward(points, centre)
-        if not (half > 0 and math.isfinite(se)):
-            continue
-        predicted = bow_toward(line, centre)[0]
+    with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
+        lines = _predicted_lines(points, sizes, camera)
+        finite = np.logical_and.reduceat(np.all(np.isfinite(lines), axis=1), np.r_[0, np.cumsum(sizes)[:-1]])
+        bow, se, half = _bows(points, sizes, centre)
+        predicted = _bows(np.where(np.isfinite(lines), lines, 0.0), sizes, centre)[0]
         to_curvature = 2.0 * width / half ** 2  # a bow (px) as a curvature times the width
-        allowed = BOW_CURVATURE_FLOOR + BOW_SHARE * abs(predicted) * to_curvature
-        out[i] = (bow - predicted) * to_curvature > allowed + BOW_SIGMAS * se * to_curvature
+        allowed = BOW_CURVATURE_FLOOR + BOW_SHARE * np.abs(predicted) * to_curvature
+        flagged = (bow - predicted) * to_curvature > allowed + BOW_SIGMAS * se * to_curvature
+    out[judged] = flagged & finite & (half > 0) & np.isfinite(se)
     return out
