@@ -2359,11 +2359,19 @@ MUTANTS = [
         tests=['test/core/lines/test_bowing.py::test_the_bowed_curves_leave_their_images_with_them_and_are_counted_as_rejected'],
     ),
     dict(
-        id='bow-cli-json-counts-every-rejected',
+        id='bow-cli-json-without-curves-bowed',
         file=f'{PKG}/cli/refine.py',
-        old="    summary['refinement']['curves_bowed'] = result.curves_bowed",
-        new="    summary['refinement']['curves_bowed'] = result.curves_rejected",
-        behaviour='refine --json: curves_bowed is the number of curves left out for bowing',
+        old="               'line_residual_px_after', 'coverage', 'principal_point_shift_px', 'curves_bowed')",
+        new="               'line_residual_px_after', 'coverage', 'principal_point_shift_px')",
+        behaviour='refine --json: refinement.curves_bowed is the number of curves left out for bowing',
+        tests=['test/core/lines/test_bowing.py::test_the_cli_reports_the_bowed_count_not_every_rejected_curve'],
+    ),
+    dict(
+        id='bow-cli-text-counts-every-rejected',
+        file=f'{PKG}/cli/refine.py',
+        old="            print(f'left out  {result.curves_bowed} curves bowing toward the image centre (a bonnet, a body\\'s edge): '",
+        new="            print(f'left out  {result.curves_rejected} curves bowing toward the image centre (a bonnet, a body\\'s edge): '",
+        behaviour="refine's text says how many curves it left out for bowing",
         tests=['test/core/lines/test_bowing.py::test_the_cli_reports_the_bowed_count_not_every_rejected_curve'],
     ),
     dict(

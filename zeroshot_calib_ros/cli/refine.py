@@ -48,7 +48,7 @@ def add_parser(subparsers):
 
 
 REFINE_KEYS = ('accepted', 'reason', 'images_used', 'lines_used', 'line_residual_px_before',
-               'line_residual_px_after', 'coverage', 'principal_point_shift_px')
+               'line_residual_px_after', 'coverage', 'principal_point_shift_px', 'curves_bowed')
 
 
 MIN_REFINE_IMAGE_SIDE = 32
@@ -129,7 +129,6 @@ def run(args):
     summary['uncertainty_px'] = result.uncertainty_px if result.accepted else result.zero_shot_uncertainty_px
     summary['refinement'] = json_safe({k: getattr(result, k) for k in REFINE_KEYS})
     summary['refinement']['curves_static'] = len(result.static_curves)
-    summary['refinement']['curves_bowed'] = result.curves_bowed
     if getattr(result, 'zero_shot_uncertainty', None) is not None and result.zero_shot_uncertainty.warning \
             and not result.accepted:
         warnings.append(result.zero_shot_uncertainty.warning)

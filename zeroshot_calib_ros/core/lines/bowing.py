@@ -46,11 +46,17 @@ of the curve's points about a parabola)."""
 MIN_BOW_POINTS = 8
 
 
+def _runs(sizes: np.ndarray) -> tuple:
+    """(each curve's first index, each point's curve) of curves of ``sizes`` points laid one after
+    another."""
+    return np.r_[0, np.cumsum(sizes)[:-1]], np.repeat(np.arange(len(sizes)), sizes)
+
+
 def _bows(points: np.ndarray, sizes: np.ndarray, centre) -> tuple:
     """``bow_toward`` of many curves at once: ``points`` (N, 2) the curves one after another,
-    ``sizes`` their numbers of points (each at least 4); (bow, se, half) arrays, one per curve."""
-    starts = np.r_[0, np.cumsum(sizes)[:-1]]
-    owner = np.repeat(np.arange(len(sizes)), sizes)
+    ``sizes`` their numbers of points (each at least 4); (bow, se, half) arrays, one per curve
+    (se infinite where no parabola can be fitted)."""
+    starts, owner = _runs(sizes)
     mean = np.add.reduceat(points, starts, axis=0) / sizes[:, None]
     d = points - mean[owner]
     scatter = np.stack([np.add.reduceat(d[:, 0] * d[:, 0], starts), np.add.reduceat(d[:, 0] * d[:, 1], starts),
@@ -96,8 +102,7 @@ def bow_toward(points: np.ndarray, centre) -> tuple:
 
 def _predicted_lines(points: np.ndarray, sizes: np.ndarray, camera: CameraModel) -> np.ndarray:
     """``predicted_line`` of many curves at once (``_bows``' layout)."""
-    starts = np.r_[0, np.cumsum(sizes)[:-1]]
-    owner = np.repeat(np.arange(len(sizes)), sizes)
+    starts, owner = _runs(sizes)
     rays = np.asarray(camera.unproject(points), float)
     rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
     normal = np.cross(rays[starts], rays[starts + sizes - 1])
@@ -128,11 +133,11 @@ def bows_the_wrong_way(curves: Sequence[np.ndarray], camera: CameraModel, width:
     centre = (camera.cx, camera.cy)
     with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
         lines = _predicted_lines(points, sizes, camera)
-        finite = np.logical_and.reduceat(np.all(np.isfinite(lines), axis=1), np.r_[0, np.cumsum(sizes)[:-1]])
+        finite = np.logical_and.reduceat(np.all(np.isfinite(lines), axis=1), _runs(sizes)[0])
         bow, se, half = _bows(points, sizes, centre)
         predicted = _bows(np.where(np.isfinite(lines), lines, 0.0), sizes, centre)[0]
         to_curvature = 2.0 * width / half ** 2  # a bow (px) as a curvature times the width
         allowed = BOW_CURVATURE_FLOOR + BOW_SHARE * np.abs(predicted) * to_curvature
         flagged = (bow - predicted) * to_curvature > allowed + BOW_SIGMAS * se * to_curvature
-    out[judged] = flagged & finite & (half > 0) & np.isfinite(se)
+    out[judged] = flagged & finite & np.isfinite(se)  # se is infinite where no parabola fits (half 0)
     return out
