@@ -109,7 +109,7 @@ def run(args):
             'or leave it out to use the measured diameter')
     solution = solve_zero_shot(spec, 'auto', fov_tolerance=args.fov_tolerance)
     progress = progress_line(args, 'refine')
-    # the images are detected in parallel threads (the same curves, in the same order)
+    # the images are detected in worker processes, one per core (the same curves, in the same order)
     try:
         result = refine_from_images(spec, images, args.fov_tolerance, workers=os.cpu_count() or 1, regions=regions,
                                     solution=solution,

@@ -52,6 +52,7 @@ periphery) and fits again.
 from __future__ import annotations
 
 import math
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import Callable, Dict, List, Optional, Sequence
 
@@ -659,10 +660,11 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     ``curves_from_edges`` per round) and fit again (``rounds`` fits in all).
 
     Needs ``core.lines.detect`` (imported here, not at module load, so that the estimator works
-    without the detector). ``workers`` > 1: the images are detected in that many threads at
-    once, and the fits' Jacobians computed in that many (``problem.jacobian_threads``): OpenCV and
-    numpy release the GIL for most of the work; the curves are the same, to floating-point
-    rounding, and in the same order, and the Jacobians are the same as in one thread.
+    without the detector). ``workers`` > 1: several images are detected in that many worker
+    processes at once (``core.lines.detection_processes``: fresh interpreters, started and ended
+    by this call; the caller's ``__main__`` is not run again), the views of one image in that many
+    threads, and the fits' Jacobians computed in that many threads (``problem.jacobian_threads``);
+    the curves are the same, in the same order, and the Jacobians the same as in one thread.
 
     Each image's usable region (``core.lines.image_region.find_image_region``, or ``regions`` if
     already found) keeps the detector off an image circle's boundary and off black borders; the
@@ -679,9 +681,9 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     camera at the images' size, its error bar) is made once, from ``solution`` when given (a
     ``ZeroShotSolution``, or a ``ZeroShotStart`` of the images' size and ``fov_tolerance_deg``), and
     passed to every round's fit."""
-    from ..lines.detect import curves_from_edges, find_edges, make_views
-    from ..lines.image_region import combine_circles, find_image_region
-    from ..lines.static_curves import image_gradients
+    from ..lines.detect import curves_from_edges, make_views
+    from ..lines.detection_processes import DetectionProcesses, detect_image
+    from ..lines.image_region import combine_circles
     images = list(images)
     if not images:
         raise ValueError('no images given')
@@ -689,64 +691,67 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     if len(sizes) != 1:
         raise ValueError('images have different sizes: ' + ', '.join(f'{w}x{h}' for h, w in sorted(sizes)))
     (height, width), = sizes
-    if regions is None:
-        regions = [find_image_region(im) for im in images]
-    elif len(regions) != len(images):
+    if regions is not None and len(regions) != len(images):
         raise ValueError(f'{len(regions)} regions for {len(images)} images')
-    circle = combine_circles([r.circle for r in regions])
-    measured_in = sum(r.circle is not None for r in regions)
+    regions = list(regions) if regions is not None else [None] * len(images)  # None: found with the edges
     start = zero_shot_start(spec, width, height, fov_tolerance_deg, solution)
     camera = start.camera
     result = None
     total_rounds = max(1, rounds)
     edges = [None] * len(images)
     gradients = {}  # static_curves' image gradients, the same in every round
-    for round_index in range(total_rounds):
-        # the edge points are looked for once, with zero-shot's camera (its FOVs rounded:
-        # zero_shot.ZeroShotStart.detection_camera); later rounds make curves
-        # of them under the refined camera (pieces straight under it, merged), which is where a
-        # better camera changes the evidence: longer lines pass the straightness test and merge
-        views = make_views(start.detection_camera, workers=workers) if round_index == 0 else None
-        curves = []
+    # several images on several cores: in worker processes (detection_processes: threads would
+    # share one core, the merging of pieces holds the GIL); the same function either way
+    several = workers > 1 and len(images) > 1
+    with DetectionProcesses(min(workers, len(images))) if several else nullcontext() as processes:
+        for round_index in range(total_rounds):
+            curves = []
 
-        def detected(done, camera=camera, round_index=round_index):
+            def detected(done, camera=camera, round_index=round_index):
+                if progress is not None:
+                    progress(RefineProgress('detection', round_index + 1, total_rounds, done, len(images),
+                                            len(curves), camera))
+
+            # the edge points are looked for once, with zero-shot's camera (its FOVs rounded:
+            # zero_shot.ZeroShotStart.detection_camera); later rounds make curves
+            # of them under the refined camera (pieces straight under it, merged), which is where a
+            # better camera changes the evidence: longer lines pass the straightness test and merge
+            look = start.detection_camera
+            first = round_index == 0
+            if first:
+                # static_curves' gradients of each image, made beside its detection
+                jobs = [((image, look, camera, regions[i], i, len(images) > 1), detect_options)
+                        for i, image in enumerate(images)]
+            else:
+                jobs = [((edges[i], camera, i), {}) for i in range(len(images))]
+            if processes is not None:
+                found = processes.map('detect_image' if first else 'curves_from_edges', jobs)
+            elif first:
+                views = make_views(look, workers=workers)
+                found = (detect_image(*args, views=views, **kwargs) for args, kwargs in jobs)
+            else:
+                found = (curves_from_edges(*args) for args, _ in jobs)
+            for index, answer in enumerate(found):
+                if first:
+                    regions[index], edges[index], answer, image_gradient = answer
+                    if image_gradient is not None:
+                        gradients[index] = image_gradient
+                curves += answer
+                detected(index + 1)
+            circle = combine_circles([r.circle for r in regions])
+            measured_in = sum(r.circle is not None for r in regions)
+            with jacobian_threads(workers):
+                attempt = refine_from_frames(spec, curves, images, width, height, fov_tolerance_deg,
+                                             initial=camera if result is not None else None, solution=start,
+                                             image_circle=circle if use_image_circle else None, gradients=gradients)
+            attempt.image_circle, attempt.circle_measured_in = circle, measured_in
             if progress is not None:
-                progress(RefineProgress('detection', round_index + 1, total_rounds, done, len(images), len(curves),
-                                        camera))
-
-        def detect(item, camera=camera, views=views):
-            index, image = item
-            if edges[index] is None:
-                look = start.detection_camera  # where to look; the curves are made under the exact camera
-                edges[index] = find_edges(image, look, views=views, region=regions[index], **detect_options)
-                if len(images) > 1:
-                    # static_curves' gradients of this image, made here: in the workers' threads,
-                    # beside another image's detection, instead of after all of them
-                    gradients[index] = image_gradients(image)
-            return curves_from_edges(edges[index], camera, image_id=index)
-
-        if workers > 1 and len(images) > 1:
-            from concurrent.futures import ThreadPoolExecutor
-            with ThreadPoolExecutor(max_workers=min(workers, len(images))) as pool:
-                for done, found in enumerate(pool.map(detect, enumerate(images)), 1):
-                    curves += found
-                    detected(done)
-        else:
-            for done, item in enumerate(enumerate(images), 1):
-                curves += detect(item)
-                detected(done)
-        with jacobian_threads(workers):
-            attempt = refine_from_frames(spec, curves, images, width, height, fov_tolerance_deg,
-                                         initial=camera if result is not None else None, solution=start,
-                                         image_circle=circle if use_image_circle else None, gradients=gradients)
-        attempt.image_circle, attempt.circle_measured_in = circle, measured_in
-        if progress is not None:
-            progress(RefineProgress('fit', round_index + 1, total_rounds, len(images), len(images),
-                                    attempt.lines_used, attempt.camera, attempt.accepted))
-        if result is not None and not attempt.accepted:
-            break
-        result = attempt
-        if not attempt.accepted:
-            break
-        camera = attempt.camera
+                progress(RefineProgress('fit', round_index + 1, total_rounds, len(images), len(images),
+                                        attempt.lines_used, attempt.camera, attempt.accepted))
+            if result is not None and not attempt.accepted:
+                break
+            result = attempt
+            if not attempt.accepted:
+                break
+            camera = attempt.camera
     return result

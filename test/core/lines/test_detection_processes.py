@@ -1,0 +1,178 @@
+"""Several images' curves found in worker processes (``zeroshot-calib refine`` passes the
+machine's cores): the same result as in one process, the workers really used and always ended,
+errors raised in the caller, and a caller's script not run again in the workers."""
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import scenes
+from zeroshot_calib_ros.core.estimation.refine import refine_from_images
+from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
+from zeroshot_calib_ros.core.lines import detection_processes as dp
+from zeroshot_calib_ros.core.lines.detection_processes import DetectionProcesses, WorkerFailed
+from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
+
+ROOT = Path(__file__).resolve().parents[3]
+TRUTH = KannalaBrandtCamera(330.0, 330.0, 322.0, 236.0, 640, 480, [0.02, -0.01, 0.004, -0.001])
+
+
+def spec_of(camera):
+    from zeroshot_calib_ros.core.lens.wide_fov import fields_of_view_through_axis
+    return CameraSpec(width=camera.width, height=camera.height, **fields_of_view_through_axis(camera))
+
+
+@pytest.fixture(scope='module')
+def frames():
+    scene = scenes.make_scene('room', 7)
+    return [scenes.render(TRUTH, scene, pose=scenes.random_pose(scene, 40 + k), seed=40 + k)[0] for k in range(3)]
+
+
+def alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # a zombie is gone for every purpose but its entry: it is reaped by its parent's wait
+    with open(f'/proc/{pid}/stat') as stat:
+        return stat.read().split(') ')[-1][0] != 'Z'
+
+
+@pytest.fixture
+def started(monkeypatch):
+    """The pids of every worker process started, recorded in this process."""
+    pids = []
+    start = DetectionProcesses._start
+
+    def recording(self):
+        start(self)
+        pids.extend(self.pids)
+
+    monkeypatch.setattr(DetectionProcesses, '_start', recording)
+    return pids
+
+
+def summary(result):
+    """What a user gets from refine_from_images, to the last digit, and every curve it found."""
+    curves = result.curves + result.static_curves
+    return (result.accepted, result.reason, result.camera.K.tolist(), result.camera.D.tolist(), result.lines_used,
+            result.uncertainty_px, [(c.image, np.asarray(c.points).tobytes()) for c in curves])
+
+
+def test_images_detected_in_worker_processes_give_what_one_process_gives(frames, started):
+    spec = spec_of(TRUTH)
+    alone = refine_from_images(spec, frames, workers=1)
+    assert not started
+    shared = refine_from_images(spec, frames, workers=2)
+    assert len(started) == 2 and os.getpid() not in started, 'the images were not detected in two processes'
+    assert summary(shared) == summary(alone)
+    assert alone.lines_used >= 8 and {c.image for c in alone.curves} == {0, 1, 2}
+    assert not any(alive(pid) for pid in started), 'a worker process outlived the call'
+
+
+def test_no_more_workers_than_images_and_none_for_one_image(frames, started):
+    refine_from_images(spec_of(TRUTH), frames[:2], rounds=1, workers=8)
+    assert len(started) == 2
+    started.clear()
+    refine_from_images(spec_of(TRUTH), frames[:1], rounds=1, workers=8)
+    assert not started
+
+
+def test_each_round_and_progress_see_the_images_in_order(frames, started):
+    reports = []
+    result = refine_from_images(spec_of(TRUTH), frames, workers=2, progress=reports.append)
+    detections = [r for r in reports if r.stage == 'detection']
+    rounds = sorted({r.round for r in detections})
+    for number in rounds:
+        done = [r.frames_done for r in detections if r.round == number]
+        assert done == [1, 2, 3]
+    assert len(rounds) == len([r for r in reports if r.stage == 'fit']) and result.lines_used > 0
+
+
+def test_a_detection_error_in_a_worker_is_raised_in_the_caller_and_the_workers_end(frames, started):
+    with pytest.raises(TypeError, match='unknown option.*no_such_option'):
+        refine_from_images(spec_of(TRUTH), frames, workers=2, no_such_option=1)
+    assert len(started) == 2 and not any(alive(pid) for pid in started)
+
+
+def test_an_error_in_the_callers_progress_ends_the_workers_at_once(frames, started):
+    def fail(report):
+        raise KeyboardInterrupt  # a Ctrl-C landing in the middle of detection
+
+    with pytest.raises(KeyboardInterrupt):
+        refine_from_images(spec_of(TRUTH), frames, workers=2, progress=fail)
+    assert started and not any(alive(pid) for pid in started)
+
+
+def test_a_worker_that_dies_is_an_error_naming_it_not_a_hang():
+    with DetectionProcesses(1) as workers:
+        workers._start()
+        pid, = workers.pids
+        os.kill(pid, 9)
+        with pytest.raises(WorkerFailed, match='ended without answering.*-9'):
+            list(workers.map('curves_from_edges', [((None, TRUTH, 0), {})] * 3))
+
+
+def test_only_the_listed_jobs_run():
+    with pytest.raises(ValueError, match="unknown job 'exec': allowed: detect_image, curves_from_edges"):
+        list(DetectionProcesses(1).map('exec', [((), {})]))
+
+
+def test_a_print_in_a_worker_does_not_corrupt_its_answers(tmp_path):
+    """A worker's stdout is stderr: what a library prints there cannot break the stream of answers."""
+    code = textwrap.dedent('''
+        import sys
+        from zeroshot_calib_ros.core.lines import detection_processes as dp
+        dp.JOBS['chatty'] = lambda value: print('a library talking', value) or value * 2
+        dp._main()
+    ''')
+    worker = subprocess.Popen([sys.executable, '-c', code], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    for value in (1, 2):
+        dp._send(worker.stdin, ('chatty', (value,), {}))
+    dp._send(worker.stdin, ('chatty', ('x', 'too many'), {}))
+    answers = [dp._receive(worker.stdout) for _ in range(3)]
+    worker.stdin.close()
+    assert worker.wait(20) == 0
+    assert answers[:2] == [(True, 2), (True, 4)]
+    assert answers[2][0] is False and isinstance(answers[2][1], TypeError)
+    assert b'a library talking 1' in worker.stderr.read()
+
+
+def test_a_script_without_a_main_guard_runs_once(tmp_path, frames):
+    """Worker processes are fresh interpreters, not multiprocessing's spawn, which runs the caller's
+    ``__main__`` again: a user's script that calls refine at its top level runs once, and ends."""
+    import cv2
+    paths = []
+    for k, frame in enumerate(frames[:2]):
+        paths.append(str(tmp_path / f'frame{k}.png'))
+        cv2.imwrite(paths[-1], frame)
+    marker = tmp_path / 'ran.txt'
+    script = tmp_path / 'calibrate.py'
+    script.write_text(textwrap.dedent(f'''
+        import cv2
+        from zeroshot_calib_ros.core import CameraSpec
+        from zeroshot_calib_ros.core.estimation.refine import refine_from_images
+        spec = CameraSpec(**{dict(spec_of(TRUTH).given())!r}, width=640, height=480)
+        result = refine_from_images(spec, [cv2.imread(p, 0) for p in {paths!r}], rounds=1, workers=2)
+        with open({str(marker)!r}, 'a') as out:
+            out.write(f'ran {{result.lines_used}}\\n')
+    '''))
+    done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert done.returncode == 0, done.stderr
+    lines = marker.read_text().splitlines()
+    assert len(lines) == 1 and int(lines[0].split()[1]) > 0
+
+
+def test_workers_import_this_checkout_whatever_the_callers_path(frames, started, monkeypatch):
+    """A worker imports the package the caller imported (its parent directory first on the
+    worker's PYTHONPATH), even when the caller found it by a path the environment does not have."""
+    monkeypatch.setenv('PYTHONPATH', '/nonexistent')
+    result = refine_from_images(spec_of(TRUTH), frames[:2], rounds=1, workers=2)
+    assert len(started) == 2 and result.lines_used > 0
+
