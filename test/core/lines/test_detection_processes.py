@@ -42,6 +42,21 @@ def alive(pid):
         return stat.read().split(') ')[-1][0] != 'Z'
 
 
+def children_of(parent):
+    """The pids whose parent is ``parent`` (from /proc)."""
+    found = []
+    for entry in os.listdir('/proc'):
+        if entry.isdigit():
+            try:
+                with open(f'/proc/{entry}/stat') as stat:
+                    fields = stat.read().rsplit(') ', 1)[-1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == parent:
+                found.append(int(entry))
+    return found
+
+
 @pytest.fixture
 def started(monkeypatch):
     """The pids of every worker process started, recorded in this process."""
@@ -176,3 +191,32 @@ def test_workers_import_this_checkout_whatever_the_callers_path(frames, started,
     result = refine_from_images(spec_of(TRUTH), frames[:2], rounds=1, workers=2)
     assert len(started) == 2 and result.lines_used > 0
 
+
+
+def test_ctrl_c_during_the_cli_refine_ends_it_and_its_workers_without_a_traceback(tmp_path, frames):
+    """A Ctrl-C at the terminal (SIGINT to the foreground process group) while `zeroshot-calib refine`
+    detects several images: exit status 130, no traceback, and no worker process left behind (the
+    workers are in a session of their own: the caller stops them)."""
+    import signal
+    import time
+    import cv2
+    paths = []
+    for k, frame in enumerate(frames):
+        paths.append(str(tmp_path / f'frame{k}.png'))
+        cv2.imwrite(paths[-1], frame)
+    fov = dict(spec_of(TRUTH).given())
+    run = subprocess.Popen([sys.executable, '-m', 'zeroshot_calib_ros.cli', 'refine', *paths,
+                            '--hfov', f"{fov['hfov']:.3f}", '--vfov', f"{fov['vfov']:.3f}"],
+                           env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           text=True, start_new_session=True,
+                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    children, deadline = [], time.monotonic() + 120
+    while not children and run.poll() is None and time.monotonic() < deadline:
+        children = children_of(run.pid)
+        time.sleep(0.01)
+    assert children, 'refine ended before its worker processes were seen'
+    os.killpg(run.pid, signal.SIGINT)
+    out, err = run.communicate(timeout=60)
+    assert run.returncode == 130 and 'Traceback' not in err, err
+    time.sleep(0.5)
+    assert not any(alive(pid) for pid in children), 'a worker process outlived a Ctrl-C'
