@@ -91,9 +91,11 @@ def test_the_slight_inward_bow_of_a_nearly_rectilinear_lens_is_allowed():
 def test_noisy_short_curves_are_not_flagged_for_their_noise():
     rng = np.random.default_rng(9)
     short = [np.stack([np.linspace(600, 640, 10), np.full(10, 700.0)], axis=1) + rng.normal(0, 1.0, (10, 2))
-             for _ in range(50)]
+             for _ in range(400)]
     pinhole = PinholeCamera(500.0, 500.0, W / 2, H / 2, W, H)
-    assert bows_the_wrong_way(short, pinhole, W).sum() <= 1
+    # three standard errors estimated from 10 points (7 degrees of freedom) pass by chance about
+    # once in a hundred: at most 2 %, where a test of the bow alone would flag nearly half
+    assert bows_the_wrong_way(short, pinhole, W).sum() <= 8
 
 
 def test_refine_leaves_out_a_bonnet_seen_in_one_frame():
@@ -270,3 +272,31 @@ def test_each_curve_is_judged_alone_whatever_lies_beside_it():
     curves = [short, arc, same, line, unseen, arc[::-1]]
     assert bows_the_wrong_way(curves, TRUTH, W).tolist() == [False, True, False, False, False, True]
     assert bows_the_wrong_way(curves[::-1], TRUTH, W).tolist() == [True, False, False, False, True, False]
+
+
+# A cinema camera with a 6 mm rectilinear-ish wide lens (a lens profile's camera at 960 x 506),
+# seen through a vignetted image circle with a bonnet at the bottom whose edge curves as gently as
+# the image is wide: its pieces curve inward by 0.7 to 1.0 image widths' curvature beyond what a
+# line there would, under the floor the bow test had before, and a fit that took them was accepted
+# 7 px worse than zero-shot (14.9 against 2.9 px at 1920)
+WIDE_CINE = KannalaBrandtCamera(316.692, 317.095, 489.008, 252.200, 960, 506, [0.328212, 0.189701, -0.066741, 0.095334])
+
+
+def test_a_bonnet_as_gentle_as_the_image_width_in_one_frame_does_not_make_refine_worse():
+    radius = 0.47 * 506
+    scene = scenes.make_scene('room', 207)
+    nuisances = scenes.Nuisances(circle_radius=radius, vehicle=True, blur=0.6, noise=2.0, jpeg_quality=80)
+    image, _ = scenes.render(WIDE_CINE, scene, pose=scenes.random_pose(scene, 2070), seed=2070, nuisances=nuisances)
+    edge = WIDE_CINE.unproject(np.array([[WIDE_CINE.cx + radius, WIDE_CINE.cy]]))[0]
+    spec = CameraSpec(960, 506, **fields_of_view_through_axis(WIDE_CINE), circle_diameter=2 * radius,
+                      circle_fov=2 * math.degrees(math.atan2(math.hypot(edge[0], edge[1]), edge[2])))
+    result = refine_from_images(spec, [image])
+    inside = pixel_grid(960, 506, (65, 37))
+    inside = inside[np.hypot(inside[:, 0] - WIDE_CINE.cx, inside[:, 1] - WIDE_CINE.cy) <= radius]
+    zero_shot = best_rotation_rms(result.zero_shot_camera, WIDE_CINE, pixels=inside)
+    returned = best_rotation_rms(result.camera, WIDE_CINE, pixels=inside)
+    on_bonnet = np.array([np.mean(c.points[:, 1]) > WIDE_CINE.cy + 0.7 * radius for c in result.curves])
+    # the bonnet's pieces left out (a short, noisy one may pass the test of its standard error)
+    assert on_bonnet.sum() >= 3 and result.used[on_bonnet].sum() <= 1
+    assert result.curves_bowed >= on_bonnet.sum() - 1
+    assert returned <= zero_shot + 0.15, (returned, zero_shot, result.reason)  # 0.3 px at 1920
