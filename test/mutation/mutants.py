@@ -817,9 +817,8 @@ MUTANTS = [
     dict(
         id='refine-from-images-second-detection-with-zero-shot',
         file=f'{PKG}/core/estimation/refine.py',
-        old=("            break\n"
-             "        camera = attempt.camera\n"),
-        new=("            break\n"),
+        old='            break\n            camera = attempt.camera\n',
+        new='            break\n',
         behaviour='refine_from_images: the second detection round uses the refined camera',
         tests=['test/core/estimation/test_refine.py::test_refine_from_images_makes_curves_again_under_the_refined_camera'],
     ),
@@ -1567,18 +1566,16 @@ MUTANTS = [
     dict(
         id='r5-refine-first-region-for-every-image',
         file=f'{PKG}/core/estimation/refine.py',
-        old='region=regions[index], **detect_options)',
-        new='region=regions[0], **detect_options)',
+        old='jobs = [((image, look, camera, regions[i], i, len(images) > 1), detect_options)',
+        new='jobs = [((image, look, camera, regions[0], i, len(images) > 1), detect_options)',
         behaviour="Each image is searched inside its OWN usable region (regions[i] for images[i])",
         tests=['test/core/lines/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
     ),
     dict(
         id='r5-refine-circle-measured-in-every-image',
         file=f'{PKG}/core/estimation/refine.py',
-        old=('    measured_in = sum(r.circle is not None for r in regions)\n'
-             '    start = zero_shot_start('),
-        new=('    measured_in = len(regions)\n'
-             '    start = zero_shot_start('),
+        old='            measured_in = sum(r.circle is not None for r in regions)\n',
+        new='            measured_in = len(regions)\n',
         behaviour='Refinement.circle_measured_in: how many of the images showed the image circle',
         tests=['test/core/lines/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
     ),
@@ -1777,8 +1774,8 @@ MUTANTS = [
     dict(
         id='r6-refine-edges-of-the-first-image',
         file=f'{PKG}/core/estimation/refine.py',
-        old='edges[index] = find_edges(image, look,',
-        new='edges[index] = find_edges(images[0], look,',
+        old='jobs = [((image, look, camera, regions[i], i, len(images) > 1), detect_options)\n                        for i, image in enumerate(images)]',
+        new='jobs = [((images[0], look, camera, regions[i], i, len(images) > 1), detect_options)\n                        for i, image in enumerate(images)]',
         behaviour="refine_from_images: each image's curves are found in that image",
         tests=['test/core/estimation/test_refine.py::test_refine_from_images_detects_each_image_with_the_options_given',
                'test/core/lines/test_static_curves.py::test_refine_leaves_out_the_vehicle_body_seen_in_every_frame'],
@@ -1786,25 +1783,25 @@ MUTANTS = [
     dict(
         id='r6-refine-detect-options-dropped',
         file=f'{PKG}/core/estimation/refine.py',
-        old='find_edges(image, look, views=views, region=regions[index], **detect_options)',
-        new='find_edges(image, look, views=views, region=regions[index])',
+        old='jobs = [((image, look, camera, regions[i], i, len(images) > 1), detect_options)',
+        new='jobs = [((image, look, camera, regions[i], i, len(images) > 1), {})',
         behaviour="refine_from_images(**detect_options): the detection options given (max_curves, tolerance_px, "
                   "...) are the detector's",
         tests=['test/core/estimation/test_refine.py::test_refine_from_images_detects_each_image_with_the_options_given'],
     ),
     dict(
         id='r6-refine-region-ignored',
-        file=f'{PKG}/core/estimation/refine.py',
-        old='find_edges(image, look, views=views, region=regions[index], **detect_options)',
-        new='find_edges(image, look, views=views, **detect_options)',
+        file=f'{PKG}/core/lines/detection_processes.py',
+        old='    edges = find_edges(image, look, views=views, region=region, **options)',
+        new='    edges = find_edges(image, look, views=views, **options)',
         behaviour="refine_from_images(regions=...): each image is searched inside its own region only",
         tests=['test/core/lines/test_image_region.py::test_each_image_is_searched_inside_its_own_region'],
     ),
     dict(
         id='r6-refine-looks-again-each-round',
         file=f'{PKG}/core/estimation/refine.py',
-        old='            if edges[index] is None:',
-        new='            if True:',
+        old='            first = round_index == 0\n',
+        new='            first = True\n',
         behaviour='refine_from_images looks for edge points once per image, with the zero-shot camera; later '
                   'rounds make curves of the same points',
         tests=['test/core/estimation/test_refine.py::test_refine_from_images_makes_curves_again_under_the_refined_camera'],
@@ -1812,9 +1809,8 @@ MUTANTS = [
     dict(
         id='r6-refine-second-round-under-zero-shot',
         file=f'{PKG}/core/estimation/refine.py',
-        old='            return curves_from_edges(edges[index], camera, image_id=index)',
-        new='            return curves_from_edges(edges[index], zero_shot_camera(spec, width, height, solution), '
-            'image_id=index)',
+        old='                jobs = [((edges[i], camera, i), {}) for i in range(len(images))]',
+        new='                jobs = [((edges[i], start.camera, i), {}) for i in range(len(images))]',
         behaviour="refine_from_images' second round makes its curves under the camera the first fit gave",
         tests=['test/core/estimation/test_refine.py::test_refine_from_images_makes_curves_again_under_the_refined_camera'],
     ),
@@ -1949,9 +1945,8 @@ MUTANTS = [
     dict(
         id='detection-camera-used-for-curves',
         file=f'{PKG}/core/estimation/refine.py',
-        old='            return curves_from_edges(edges[index], camera, image_id=index)\n',
-        new='            return curves_from_edges(edges[index], start.detection_camera if round_index == 0 else camera,\n'
-            '                                     image_id=index)\n',
+        old='                jobs = [((image, look, camera, regions[i], i, len(images) > 1), detect_options)',
+        new='                jobs = [((image, look, look, regions[i], i, len(images) > 1), detect_options)',
         behaviour='refine: the curves are made and fitted under the exact zero-shot camera; the rounded one only decides '
                   'where to look',
         tests=['test/core/estimation/test_refine.py::test_refine_from_images_makes_curves_again_under_the_refined_camera'],
