@@ -184,10 +184,11 @@ def test_a_script_without_a_main_guard_runs_once(tmp_path, frames):
     assert len(lines) == 1 and int(lines[0].split()[1]) > 0
 
 
-def test_workers_import_this_checkout_whatever_the_callers_path(frames, started, monkeypatch):
+def test_workers_import_this_checkout_whatever_the_callers_path(frames, started, monkeypatch, tmp_path):
     """A worker imports the package the caller imported (its parent directory first on the
     worker's PYTHONPATH), even when the caller found it by a path the environment does not have."""
     monkeypatch.setenv('PYTHONPATH', '/nonexistent')
+    monkeypatch.chdir(tmp_path)  # not the checkout: `python -m` would find the package there
     result = refine_from_images(spec_of(TRUTH), frames[:2], rounds=1, workers=2)
     assert len(started) == 2 and result.lines_used > 0
 
