@@ -647,6 +647,40 @@ def test_refine_from_images_makes_curves_again_under_the_refined_camera(monkeypa
     assert started_from == [None, TRUTH]
 
 
+
+def test_each_round_fits_the_curves_it_made_and_no_earlier_rounds(monkeypatch):
+    """refine_from_images: a round's fit gets that round's curves of every image, once each (not
+    the earlier rounds' curves besides), and the static-curve gradients of every image."""
+    from zeroshot_calib_ros.core.estimation import refine as refine_module
+    from zeroshot_calib_ros.core.lines import detect as detect_module
+    from zeroshot_calib_ros.core.lines.static_curves import image_gradients
+    spec = spec_of(TRUTH)
+    zs = zero_shot_camera(spec, W, H)
+    made, fitted = [], []
+
+    def curves_from_edges(edges, camera, image_id=None):
+        made.append(f'curve {len(made)} of image {image_id}')
+        return [made[-1]]
+
+    def fit(spec, curves, images, width, height, tolerance, initial=None, solution=None, image_circle=None,
+            gradients=None):
+        fitted.append((list(curves), dict(gradients)))
+        return refine_module.Refinement(TRUTH, True, 'accepted', 1.0, 3.0, 0, 0, None, None, 0.0, 0.0,
+                                        zero_shot_camera=zs)
+    monkeypatch.setattr(detect_module, 'find_edges', lambda image, camera, views=None, **kw: object())
+    monkeypatch.setattr(detect_module, 'curves_from_edges', curves_from_edges)
+    monkeypatch.setattr(detect_module, 'make_views', lambda camera, **kw: None)
+    monkeypatch.setattr(refine_module, 'refine_from_frames', fit)
+    rng = np.random.default_rng(3)
+    images = [rng.integers(0, 255, (H, W), dtype=np.uint8) for _ in range(2)]
+    refine_from_images(spec, images, rounds=3)
+    assert [curves for curves, _ in fitted] == [
+        ['curve 0 of image 0', 'curve 1 of image 1'], ['curve 2 of image 0', 'curve 3 of image 1'],
+        ['curve 4 of image 0', 'curve 5 of image 1']]
+    for _, gradients in fitted:
+        assert sorted(gradients) == [0, 1]
+        assert all(np.array_equal(gradients[k], image_gradients(image)) for k, image in enumerate(images))
+
 def test_jacobian_in_threads_is_the_jacobian_in_one_thread():
     """``jacobian_threads``: the columns computed in several threads (what ``refine --workers``
     uses on a multi-core machine) are the same numbers as in one thread, so a user's result does

@@ -42,6 +42,18 @@ def alive(pid):
         return stat.read().split(') ')[-1][0] != 'Z'
 
 
+def working_detection_worker(pid):
+    """Whether ``pid`` is a detection worker that has imported OpenCV (its libraries are mapped)."""
+    try:
+        with open(f'/proc/{pid}/cmdline', 'rb') as cmdline:
+            if b'detection_processes' not in cmdline.read():
+                return False
+        with open(f'/proc/{pid}/maps') as maps:
+            return 'cv2' in maps.read()
+    except OSError:
+        return False
+
+
 def children_of(parent):
     """The pids whose parent is ``parent`` (from /proc)."""
     found = []
@@ -202,7 +214,7 @@ def test_ctrl_c_during_the_cli_refine_ends_it_and_its_workers_without_a_tracebac
     import time
     import cv2
     paths = []
-    for k, frame in enumerate(frames):
+    for k, frame in enumerate(frames * 3):  # nine frames: the workers are still at work when the signal comes
         paths.append(str(tmp_path / f'frame{k}.png'))
         cv2.imwrite(paths[-1], frame)
     fov = dict(spec_of(TRUTH).given())
@@ -211,13 +223,133 @@ def test_ctrl_c_during_the_cli_refine_ends_it_and_its_workers_without_a_tracebac
                            env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                            text=True, start_new_session=True,
                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    # Not the first child seen: an import may run a short-lived helper (ldconfig), and a SIGINT
+    # during the CLI's imports is Python's own traceback. Wait until both detection workers have
+    # loaded OpenCV: they are at work, where a worker in the terminal's process group would get
+    # the Ctrl-C too.
     children, deadline = [], time.monotonic() + 120
-    while not children and run.poll() is None and time.monotonic() < deadline:
-        children = children_of(run.pid)
+    while len(children) < 2 and run.poll() is None and time.monotonic() < deadline:
+        children = [pid for pid in children_of(run.pid) if working_detection_worker(pid)]
         time.sleep(0.01)
-    assert children, 'refine ended before its worker processes were seen'
+    assert len(children) == 2, 'refine ended before its two worker processes were seen at work'
+    # a worker in the terminal's session would get the Ctrl-C too, and die with or without a
+    # traceback depending on whether it was in Python or in OpenCV at that moment
+    assert all(os.getsid(pid) == pid for pid in children), 'a worker is not in a session of its own'
     os.killpg(run.pid, signal.SIGINT)
     out, err = run.communicate(timeout=60)
     assert run.returncode == 130 and 'Traceback' not in err, err
     time.sleep(0.5)
     assert not any(alive(pid) for pid in children), 'a worker process outlived a Ctrl-C'
+
+
+
+@pytest.fixture(scope='module')
+def edges(frames):
+    """The edge points of the first frame (their curves take a worker a while to make)."""
+    return dp.detect_image(frames[0], TRUTH, TRUTH)[1]
+
+
+def test_answers_come_in_the_order_of_the_jobs_and_two_run_at_once(edges, monkeypatch):
+    """``map`` answers job k with job k's result even when later, quicker jobs end first, and
+    keeps every worker busy (two workers: two jobs at the same time)."""
+    from zeroshot_calib_ros.core.lines.detect import EdgePoints
+    running, peak = [0], [0]
+    run = DetectionProcesses._run
+
+    def counting(self, job):
+        running[0] += 1
+        peak[0] = max(peak[0], running[0])
+        try:
+            return run(self, job)
+        finally:
+            running[0] -= 1
+
+    monkeypatch.setattr(DetectionProcesses, '_run', counting)
+    empty = EdgePoints(image_size=edges.image_size, per_view=[], options=edges.options)
+    with DetectionProcesses(2) as workers:
+        answers = list(workers.map('curves_from_edges', [((edges, TRUTH, 0), {})] + [((empty, TRUTH, 1), {})] * 6))
+    assert peak[0] == 2, 'the jobs did not run two at a time'
+    assert len(answers[0]) >= 5 and answers[1:] == [[]] * 6, 'an answer came in the place of another job'
+
+
+def test_an_error_in_one_job_leaves_the_workers_ready_for_the_next(edges):
+    """A job's error is raised in the caller with its own type, and the worker that raised it
+    takes the next job (one worker: were it lost, the next map would wait forever)."""
+    import threading
+    with DetectionProcesses(1) as workers:
+        wrong_size = KannalaBrandtCamera(330.0, 330.0, 322.0, 236.0, 320, 240, [0, 0, 0, 0])
+        with pytest.raises(ValueError, match='edges are of a 640x480 image but the camera is 320x240'):
+            list(workers.map('curves_from_edges', [((edges, wrong_size, 0), {})]))
+        answers = []
+        later = threading.Thread(target=lambda: answers.extend(workers.map('curves_from_edges', [((edges, TRUTH, 0), {})])),
+                                 daemon=True)
+        later.start()
+        later.join(30)
+        assert answers and len(answers[0]) >= 5, 'the worker was not given the next job after an error'
+
+
+def test_an_error_that_cannot_travel_back_is_a_runtime_error_naming_it():
+    """An exception a worker cannot pickle (a library's own class, say) reaches the caller as a
+    RuntimeError with its type and message, not as a dead worker."""
+    import io
+
+    class LocalError(Exception):  # a local class cannot be pickled
+        pass
+
+    def fail():
+        raise LocalError('the detector could not go on')
+
+    read, write = io.BytesIO(), io.BytesIO()
+    dp._send(read, ('fail', (), {}))
+    read.seek(0)
+    dp.serve(read, write, jobs={'fail': fail})
+    write.seek(0)
+    ok, error = dp._receive(write)
+    assert ok is False and type(error) is RuntimeError and str(error) == 'LocalError: the detector could not go on'
+
+
+def test_close_lets_idle_workers_end_by_themselves_and_kill_stops_busy_ones(edges, frames):
+    """``close()``: a worker whose input is closed exits with status 0 (not killed after
+    ``STOP_SECONDS``); an error or a Ctrl-C in the ``with`` block kills the workers at once (-9),
+    without waiting for the jobs under way."""
+    workers = DetectionProcesses(2)
+    list(workers.map('curves_from_edges', [((edges, TRUTH, 0), {})] * 2))
+    processes = list(workers._workers)
+    workers.close()
+    assert [p.returncode for p in processes] == [0, 0]
+
+    with pytest.raises(KeyboardInterrupt):
+        with DetectionProcesses(2) as workers:
+            for _ in workers.map('detect_image', [((frame, TRUTH, TRUTH, None, 0), {}) for frame in frames * 4]):
+                processes = list(workers._workers)
+                raise KeyboardInterrupt
+    assert [p.returncode for p in processes] == [-9, -9]
+
+
+def test_a_script_whose_workers_died_still_ends(tmp_path, edges):
+    """After the workers die, no thread is left waiting for a worker once the caller has closed
+    them: the caller's script ends (a waiting thread of the pool would keep the interpreter from
+    exiting)."""
+    script = tmp_path / 'died.py'
+    script.write_text(textwrap.dedent('''
+        import os, pickle, sys
+        from zeroshot_calib_ros.core.lines.detection_processes import DetectionProcesses, WorkerFailed
+        edges, camera = pickle.load(open(sys.argv[1], 'rb'))
+        workers = DetectionProcesses(2)
+        list(workers.map('curves_from_edges', [((edges, camera, 0), {})] * 2))
+        for pid in workers.pids:
+            os.kill(pid, 9)
+        try:
+            list(workers.map('curves_from_edges', [((edges, camera, 0), {})] * 8))
+        except WorkerFailed as error:
+            print('failed:', error)
+        workers.close()
+        print('closed')
+    '''))
+    data = tmp_path / 'edges.pickle'
+    data.write_bytes(__import__('pickle').dumps((edges, TRUTH)))
+    done = subprocess.run([sys.executable, str(script), str(data)], capture_output=True, text=True, timeout=120,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert done.returncode == 0, done.stderr
+    assert 'failed: a detection worker process ended without answering (exit status -9)' in done.stdout
+    assert done.stdout.rstrip().endswith('closed')

@@ -121,7 +121,8 @@ class DetectionProcesses:
             _send(worker.stdin, job)
             ok, value = _receive(worker.stdout)
         except (EOFError, OSError, pickle.UnpicklingError):
-            self._idle.put(None)
+            # not put back: the caller gets this error in its turn, and its close() stops the
+            # jobs still waiting for a worker
             try:
                 status = worker.wait(STOP_SECONDS)
             except subprocess.TimeoutExpired:
