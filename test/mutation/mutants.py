@@ -2469,4 +2469,20 @@ MUTANTS = [
         behaviour="The vehicle's body seen in every frame is recognised by each frame's own gradients",
         tests=['test/core/estimation/test_refine.py::test_each_round_fits_the_curves_it_made_and_no_earlier_rounds'],
     ),
+    dict(
+        id='refine-hold-out-in-the-images-order',
+        file=f'{PKG}/core/estimation/refine.py',
+        old='    order = np.lexsort((-lengths, place))',
+        new='    order = np.arange(len(lengths))',
+        behaviour="The gate's decision does not change with the order of the images",
+        tests=['test/core/estimation/test_refine.py::test_the_held_out_curves_do_not_depend_on_the_order_of_the_images'],
+    ),
+    dict(
+        id='refine-curve-length-across-curves',
+        file=f'{PKG}/core/estimation/refine.py',
+        old='    steps[term.starts[1:] - 1] = 0.0',
+        new='    pass',
+        behaviour="The gate's decision does not change with the order of the images",
+        tests=['test/core/estimation/test_refine.py::test_the_held_out_curves_do_not_depend_on_the_order_of_the_images'],
+    ),
 ]

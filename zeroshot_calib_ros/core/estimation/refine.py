@@ -19,7 +19,8 @@ before it, judged against zero-shot. The refined camera replaces the zero-shot o
   than the check that caught it, followed by what that check found;
 - the spec agrees: no FOV of the result misses the spec's by more than ``MAX_FOV_SIGMAS``
   tolerances;
-- held-out curves (every ``HOLD_OUT_EVERY``-th straight curve, left out of a second fit) are
+- held-out curves (every ``HOLD_OUT_EVERY``-th straight curve, counted in an order that the
+  order of the images does not change: ``_hold_out_split``; left out of a second fit) are
   explained better than by the zero-shot camera;
 - its uncertainty (``uncertainty.problem_uncertainty``) is lower than zero-shot's
   (``uncertainty.zero_shot_uncertainty``), both over the image circle seen in the images when one
@@ -247,9 +248,27 @@ def coverage_of(points: np.ndarray, width: int, height: int, grid=COVERAGE_GRID,
     return cells / (grid[0] * grid[1]), reach
 
 
-def _hold_out_split(n: int, every: int = HOLD_OUT_EVERY):
-    held = np.zeros(n, dtype=bool)
-    held[every // 2::every] = True
+def _curve_lengths(term: StraightnessTerm) -> np.ndarray:
+    """Each curve's length along its points (px)."""
+    steps = np.hypot(*np.diff(term.points, axis=0).T)
+    steps[term.starts[1:] - 1] = 0.0  # no step from one curve's last point to the next curve's first
+    return np.add.reduceat(np.r_[steps, 0.0], term.starts)
+
+
+def _hold_out_split(images: Sequence, lengths: np.ndarray, every: int = HOLD_OUT_EVERY) -> np.ndarray:
+    """Every ``every``-th curve held out, counted in an order the order of the images does not
+    change (else the gate's decision would flip with it): each image's curves by their place in
+    that image's list (the detector's, longest first), the images' first curves first, then their
+    second ones, ..., curves of the same place longest first. One image: its own order."""
+    lengths = np.asarray(lengths, dtype=float)
+    place = np.zeros(len(lengths), dtype=int)
+    seen = {}
+    for k, image in enumerate(images):
+        place[k] = seen.get(image, 0)
+        seen[image] = place[k] + 1
+    order = np.lexsort((-lengths, place))
+    held = np.zeros(len(lengths), dtype=bool)
+    held[order[every // 2::every]] = True
     return held
 
 
@@ -399,7 +418,7 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
             return refuse(f'{split}; all images together: {detail}')
         return refuse(f'disagreement between the lines and the spec: {detail}')
 
-    held = _hold_out_split(result.lines_used)
+    held = _hold_out_split(used_images, _curve_lengths(used_term))
     before, after = _held_out(fit, used_term, held, priors)
     result.held_out_px_before, result.held_out_px_after = before, after
     if ref_u.rms_px is None:
