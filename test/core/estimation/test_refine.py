@@ -469,6 +469,11 @@ def test_the_held_out_curves_do_not_depend_on_the_order_of_the_images():
     lengths = np.linspace(300.0, 40.0, 23)
     assert np.flatnonzero(_hold_out_split([0] * 23, lengths)).tolist() == list(range(2, 23, HOLD_OUT_EVERY))
 
+    # the place in its image's list first, then the longest: not the length alone, nor the shortest first
+    assert np.flatnonzero(_hold_out_split(list('abcdef'), [10, 60, 30, 20, 40, 50])).tolist() == [4]
+    assert np.flatnonzero(_hold_out_split(['a'] * 3 + ['b'] * 3, [100, 90, 80, 20, 10, 5])).tolist() == [1]
+    assert np.flatnonzero(_hold_out_split([0] * 6, [10, 60, 30, 20, 40, 50])).tolist() == [2]
+
     rng = np.random.default_rng(5)
     blocks = {image: rng.uniform(30, 400, size) for image, size in (('a', 9), ('b', 14), ('c', 6))}
     for image in blocks:
@@ -722,6 +727,63 @@ def test_each_round_fits_the_curves_it_made_and_no_earlier_rounds(monkeypatch):
     for _, gradients in fitted:
         assert sorted(gradients) == [0, 1]
         assert all(np.array_equal(gradients[k], image_gradients(image)) for k, image in enumerate(images))
+
+def scripted_rounds(monkeypatch, decisions, seen=None):
+    """refine_from_images with detection stubbed out and ``refine_from_frames`` answering round k
+    with a camera of its own (fx = 400 + k), accepted as ``decisions[k]`` says; returns the list
+    of the fits' ``image_circle`` arguments."""
+    from zeroshot_calib_ros.core.estimation import refine as refine_module
+    from zeroshot_calib_ros.core.lines import detect as detect_module
+    circles = []
+
+    def fit(spec, curves, images, width, height, tolerance, initial=None, solution=None, image_circle=None,
+            gradients=None):
+        k = len(circles)
+        circles.append(image_circle)
+        camera = KannalaBrandtCamera(400.0 + k, 400.0 + k, W / 2, H / 2, W, H, [0, 0, 0, 0])
+        return refine_module.Refinement(camera, decisions[k], f'round {k}', 1.0, 3.0, 0, 0, None, None, 0.0, 0.0)
+    monkeypatch.setattr(detect_module, 'find_edges', lambda image, camera, views=None, **kw: object())
+    monkeypatch.setattr(detect_module, 'curves_from_edges', lambda edges, camera, image_id=None: [])
+    monkeypatch.setattr(detect_module, 'make_views', lambda camera, **kw: None)
+    monkeypatch.setattr(refine_module, 'refine_from_frames', fit)
+    return circles
+
+
+def test_no_more_rounds_than_asked_and_at_least_one(monkeypatch):
+    """``rounds`` fits in all while each is accepted; ``rounds`` = 0 still fits once."""
+    images = [np.zeros((H, W), np.uint8)]
+    for rounds, fits in ((0, 1), (1, 1), (3, 3)):
+        circles = scripted_rounds(monkeypatch, [True] * 5)
+        result = refine_from_images(spec_of(TRUTH), images, rounds=rounds)
+        assert len(circles) == fits and result.reason == f'round {fits - 1}'
+
+
+def test_a_refused_later_round_keeps_the_accepted_camera_before_it(monkeypatch):
+    """A round the gate refuses ends the rounds and is not returned when an earlier round was
+    accepted: the user gets the last accepted camera, not zero-shot's; a refused first round is
+    returned (it holds zero-shot's camera and the reason)."""
+    images = [np.zeros((H, W), np.uint8)]
+    scripted_rounds(monkeypatch, [True, False, True])
+    result = refine_from_images(spec_of(TRUTH), images, rounds=3)
+    assert result.accepted and result.reason == 'round 0' and result.camera.fx == 400.0
+    circles = scripted_rounds(monkeypatch, [False, True])
+    result = refine_from_images(spec_of(TRUTH), images, rounds=2)
+    assert len(circles) == 1 and not result.accepted and result.reason == 'round 0'
+
+
+def test_the_image_circle_seen_is_evidence_only_when_asked(monkeypatch):
+    """``use_image_circle=False``: the fit is given no image circle, and the result still reports
+    the circle measured (and in how many images); True: the fit gets it."""
+    from zeroshot_calib_ros.core.lines.image_region import ImageRegion
+    circle = ImageCircle(W / 2 + 3.0, H / 2 - 2.0, 390.0, 0.4, 0.6)
+    regions = [ImageRegion(np.ones((H, W), bool), circle), ImageRegion(np.ones((H, W), bool), None)]
+    images = [np.zeros((H, W), np.uint8)] * 2
+    for use, given in ((False, None), (True, circle)):
+        circles = scripted_rounds(monkeypatch, [True, True])
+        result = refine_from_images(spec_of(TRUTH), images, regions=regions, use_image_circle=use)
+        assert circles == [given, given]
+        assert result.image_circle == circle and result.circle_measured_in == 1
+
 
 def test_jacobian_in_threads_is_the_jacobian_in_one_thread():
     """``jacobian_threads``: the columns computed in several threads (what ``refine --workers``

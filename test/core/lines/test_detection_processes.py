@@ -199,11 +199,15 @@ def test_a_script_without_a_main_guard_runs_once(tmp_path, frames):
 def test_workers_import_this_checkout_whatever_the_callers_path(frames, started, monkeypatch, tmp_path):
     """A worker imports the package the caller imported (its parent directory first on the
     worker's PYTHONPATH), even when the caller found it by a path the environment does not have."""
-    monkeypatch.setenv('PYTHONPATH', '/nonexistent')
+    # a user's PYTHONPATH with another zeroshot_calib_ros on it (an older install, a colcon
+    # overlay): the workers must still import the caller's, so the caller's root comes first
+    other = tmp_path / 'other' / 'zeroshot_calib_ros'
+    other.mkdir(parents=True)
+    (other / '__init__.py').write_text("raise ImportError('another zeroshot_calib_ros was imported')\n")
+    monkeypatch.setenv('PYTHONPATH', str(other.parent))
     monkeypatch.chdir(tmp_path)  # not the checkout: `python -m` would find the package there
     result = refine_from_images(spec_of(TRUTH), frames[:2], rounds=1, workers=2)
     assert len(started) == 2 and result.lines_used > 0
-
 
 
 def test_ctrl_c_during_the_cli_refine_ends_it_and_its_workers_without_a_traceback(tmp_path, frames):
@@ -240,7 +244,6 @@ def test_ctrl_c_during_the_cli_refine_ends_it_and_its_workers_without_a_tracebac
     assert run.returncode == 130 and 'Traceback' not in err, err
     time.sleep(0.5)
     assert not any(alive(pid) for pid in children), 'a worker process outlived a Ctrl-C'
-
 
 
 @pytest.fixture(scope='module')
@@ -353,3 +356,49 @@ def test_a_script_whose_workers_died_still_ends(tmp_path, edges):
     assert done.returncode == 0, done.stderr
     assert 'failed: a detection worker process ended without answering (exit status -9)' in done.stdout
     assert done.stdout.rstrip().endswith('closed')
+
+
+def test_detect_image_looks_with_one_camera_and_makes_curves_under_the_other(monkeypatch):
+    """``detect_image``: the edge points are looked for with ``look`` (zero-shot's rounded FOVs),
+    the curves made under ``camera`` (the current estimate), in the image's own region."""
+    from zeroshot_calib_ros.core.lines import detect
+    from zeroshot_calib_ros.core.lines.image_region import ImageRegion
+    look, camera = object(), object()
+    region = ImageRegion(np.ones((4, 4), bool))
+    calls = []
+    monkeypatch.setattr(detect, 'find_edges', lambda image, cam, views=None, region=None, **kw:
+                        calls.append(('edges', cam, region)) or 'edge points')
+    monkeypatch.setattr(detect, 'curves_from_edges', lambda edges, cam, image_id=None:
+                        calls.append(('curves', cam, edges, image_id)) or ['curve'])
+    answer = dp.detect_image(np.zeros((4, 4), np.uint8), look, camera, region, 7)
+    assert answer == (region, 'edge points', ['curve'], None)
+    assert calls == [('edges', look, region), ('curves', camera, 'edge points', 7)]
+
+
+def test_workers_closed_can_be_started_again(edges):
+    """A ``DetectionProcesses`` used again after ``close()`` starts new workers and answers (it
+    does not fail on the closed pool's stop signal)."""
+    from zeroshot_calib_ros.core.lines.detect import EdgePoints
+    empty = EdgePoints(image_size=edges.image_size, per_view=[], options=edges.options)
+    workers = DetectionProcesses(1)
+    try:
+        assert list(workers.map('curves_from_edges', [((empty, TRUTH, 0), {})])) == [[]]
+        first = workers.pids
+        workers.close()
+        assert list(workers.map('curves_from_edges', [((empty, TRUTH, 0), {})] * 2)) == [[], []]
+        assert workers.pids != first
+    finally:
+        workers.close()
+
+
+def test_close_kills_a_worker_that_does_not_end_in_time_and_reaps_it(monkeypatch):
+    """A worker still busy ``STOP_SECONDS`` after its input was closed is killed, and waited for
+    (no zombie left), and both its pipes are closed (no file descriptors left open)."""
+    monkeypatch.setattr(dp, 'STOP_SECONDS', 0.0)  # a worker still starting up is not done yet
+    workers = DetectionProcesses(2)
+    workers._start()
+    processes = list(workers._workers)
+    workers.close()
+    assert [p.returncode for p in processes] == [-9, -9]
+    assert all(p.stdin.closed and p.stdout.closed for p in processes)
+    assert not any(alive(p.pid) for p in processes)
