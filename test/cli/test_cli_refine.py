@@ -76,6 +76,10 @@ def test_refine_recovers_the_true_camera_and_writes_it(views, capsys, tmp_path):
                                  refined.D)
     zero_shot = solve_zero_shot(CameraSpec(640, 360, hfov=172, vfov=97, dfov=198)).camera
     assert abs(camera.cx - TRUE.cx) < 2 and abs(camera.cy - TRUE.cy) < 2  # zero-shot: the centre, 8 px off
+    # P keeps the refined principal point (image_proc shows the scene around the optical axis);
+    # OpenCV's rule would centre P on the mean of the edges, off this 172-degree image
+    np.testing.assert_allclose(refined.P[:2, 2], refined.K[:2, 2])
+    np.testing.assert_allclose(record['P'], refined.P)
     assert record['f'] == pytest.approx(TRUE.fx, rel=0.01)
     assert dense_rms(camera, TRUE) < 1.0 < dense_rms(zero_shot, TRUE)
     assert 0 < record['uncertainty_px'] < 5

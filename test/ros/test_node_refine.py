@@ -134,10 +134,11 @@ def test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_a
                                                                                               tmp_path, frames):
     """refine_interval set at run time governs the running refiner at once (an hour first: one
     frame taken, then none; 0.5 s: frames taken and a camera refined); the refined CameraInfo's P
-    is chosen by the node's balance and fov_scale, as the zero-shot one's is."""
+    is chosen by the node's balance and fov_scale, as the zero-shot one's is, its principal point
+    the refined camera's own (as camera_calibration writes P for a fisheye)."""
     from rcl_interfaces.srv import SetParameters
     from ros_peer import parameter_msg
-    from zeroshot_calib_ros.core.ros_formats.rectify import new_camera_matrix
+    from zeroshot_calib_ros.core.ros_formats.rectify import new_camera_matrix, principal_point_camera_matrix
     node = start_node('--ros-args', *SPEC, '-p', 'refine:=true', '-p', 'refine_interval:=3600.0',
                       '-p', 'balance:=0.5', '-p', 'fov_scale:=0.8', '-p', f'camera_info_url:=file://{tmp_path}/c.yaml')
     infos = peer.collect(CameraInfo, 'camera_info', LATCHED)
@@ -159,6 +160,6 @@ def test_refine_interval_changes_at_run_time_and_the_refined_p_follows_balance_a
     assert int(diagnostics_value(diagnostics, 'refine_frames_sampled')) >= 2
     stream(peer, frames, lambda: list(infos[-1].k) != list(zero_shot.K.ravel()), timeout=5)
     refined = camera_of(infos[-1])
-    np.testing.assert_allclose(np.reshape(infos[-1].p, (3, 4))[:, :3], new_camera_matrix(refined, 0.5, 0.8),
-                               rtol=1e-6)
+    np.testing.assert_allclose(np.reshape(infos[-1].p, (3, 4))[:, :3],
+                               principal_point_camera_matrix(refined, 0.5, 0.8), rtol=1e-6)
     assert node.alive()

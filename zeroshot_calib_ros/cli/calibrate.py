@@ -245,7 +245,7 @@ def _calibrate_report(args, corners, used_views, camera, summary, **fields):
     return ReportData('calibrate', camera, summary['model'], image=image, image_name=name, balance=args.balance,
                       fov_scale=args.fov_scale, board=board_views(corners, camera, used_views),
                       warnings=summary['warning'], camera_name=args.camera_name,
-                      fov_tolerance_deg=args.fov_tolerance, **fields)
+                      fov_tolerance_deg=args.fov_tolerance, rectified=principal_point_camera_matrix, **fields)
 
 
 def _board_lines(summary, corners, used, rms_px):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..core.ros_formats.rectify import INTERPOLATIONS, Rectifier, new_camera_matrix
+from ..core.ros_formats.rectify import INTERPOLATIONS, Rectifier, new_camera_matrix, principal_point_camera_matrix
 from ..core.zeroshot.presets import spec_with_preset
 from ..core.zeroshot.solver import solve_zero_shot
 from .arguments import (IMAGE_BUDGET, SOLVE_SPEC_FIELDS, CliError, add_circle_arguments, add_fov_tolerance_argument,
@@ -106,7 +106,9 @@ def _rectify_camera(args, width, height, about=None):
             calibration = calibration.scaled(width, height)
         camera = calibration.camera()
         if args.balance is not None or args.fov_scale is not None:
-            return camera, new_camera_matrix(camera, balance, fov_scale), calibration.R
+            # a calibrated camera's P keeps its principal point, as calibrate, refine and the node
+            # write it (core/ros_formats/rectify.principal_point_camera_matrix)
+            return camera, principal_point_camera_matrix(camera, balance, fov_scale), calibration.R
         P = np.asarray(calibration.P, dtype=float)[:3, :3]
         if not abs(np.linalg.det(P)) > 0:
             raise CliError(f'--calibration {args.calibration}: projection_matrix {P.tolist()} cannot be '

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..core.lens.fitting import DISTORTION_FITS
 from ..core.ros_formats.calibration_file import CameraCalibration, json_safe, solution_summary, summary_text
+from ..core.ros_formats.rectify import new_camera_matrix, principal_point_camera_matrix
 from ..core.zeroshot.presets import spec_with_preset
 from ..core.zeroshot.solver import solve_zero_shot
 from .arguments import (EXIT_NOT_ADOPTED, EXIT_STATUSES, IMAGE_BUDGET, REPORT_HELP, CliError, add_circle_arguments,
@@ -141,7 +142,8 @@ def run(args):
                             args.fov_tolerance, result.uncertainty, summary['uncertainty_px'],
                             getattr(result.uncertainty, 'reason', ''), result.zero_shot_camera, images[0],
                             os.path.basename(names[0]), args.balance, args.fov_scale, warnings=warnings,
-                            camera_name=args.camera_name)
+                            camera_name=args.camera_name,
+                            rectified=principal_point_camera_matrix if result.accepted else new_camera_matrix)
     refused = None if result.accepted else not_adopted('not refined', result.reason, args.yaml)
     if args.yaml:  # written only now: every step has succeeded
         save_calibration(calibration, args.yaml, [refused[0]] if refused else ())
@@ -195,8 +197,10 @@ def _refined_summary(result, spec, solution, args):
                                                            args.camera_name)
         summary = solution_summary(solution, calibration, fit)
         return summary, calibration
+    # P as calibrate writes it: the refined camera is not centred in its image (output.py)
     summary, calibration = kannala_brandt_record(result.camera, spec, 'refined (Kannala-Brandt)', args,
-                                                  root_found=solution.root_found)
+                                                  root_found=solution.root_found,
+                                                  rectified=principal_point_camera_matrix)
     return json_safe(summary), calibration
 
 

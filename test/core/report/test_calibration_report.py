@@ -265,6 +265,9 @@ def test_refine_report_shows_the_first_image_rectified_and_the_verdict(views, re
     assert exact(lens, canvas.BLUE) > 300 and exact(lens, canvas.ORANGE) > 90
     pictures.error_map(image, panels[1][0])
     assert verdict(image[:panels[0][0][1]]) == 'accepted'
+    # the preview is rectified with the P written, around the refined principal point: not one
+    # side of this 172-degree lens under a red "off the image" note (OpenCV's rule would be)
+    assert exact(pictures.region(image, panels[2][0]), canvas.RED) == 0
 
 
 def test_the_contact_sheet_has_a_labelled_panel_per_image_showing_it(views, refined):

@@ -101,12 +101,13 @@ def test_cli_rectify_with_a_rotated_calibration_is_opencvs(tmp_path, model):
 
 @pytest.mark.parametrize('model', CALIBRATIONS)
 def test_cli_rectify_with_a_rotated_calibration_and_a_chosen_p_keeps_r(tmp_path, model):
-    """--balance / --fov-scale choose another P for a calibration file; its R still applies
-    (image_proc with that P would rotate the same way)."""
-    from zeroshot_calib_ros.core.ros_formats.rectify import new_camera_matrix
+    """--balance / --fov-scale choose another P for a calibration file (its principal point the
+    calibrated camera's own, as calibrate writes it); its R still applies (image_proc with that
+    P would rotate the same way)."""
+    from zeroshot_calib_ros.core.ros_formats.rectify import principal_point_camera_matrix
     cal = calibration(model)
     image, ours = rectified_by_cli(tmp_path, cal, '--balance', '0.3', '--fov-scale', '1.0')
-    mx, my = opencv_maps(cal, P=new_camera_matrix(cal.camera(), 0.3, 1.0))
+    mx, my = opencv_maps(cal, P=principal_point_camera_matrix(cal.camera(), 0.3, 1.0))
     reference = cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).astype(float)
     inside = (mx > 1) & (mx < 1278) & (my > 1) & (my < 718)
     assert inside.mean() > 0.5

@@ -4,6 +4,7 @@ in force, a newer generation is never replaced by an older one, set_camera_info 
 once in force, refinements are built over the newest calibration."""
 import os
 
+import numpy as np
 import pytest
 
 from zeroshot_calib_ros.core import CameraSpec, solve_zero_shot
@@ -161,6 +162,20 @@ def test_a_spec_that_the_solved_camera_misses_is_warned():
     summary = {'fit_error_px': 50.0, 'distortion_model': 'plumb_bob'}
     assert summary_warnings(summary)[0].endswith('(use distortion_model: equidistant for a lens this wide)')
     assert summary_warnings(None) == []
+
+
+def test_a_new_balance_keeps_a_refined_cameras_principal_point_in_p(tmp_path):
+    """balance changed after a refined 175-degree lens, 1 px off-centre, was adopted: the new P's
+    principal point is still the camera's own (OpenCV's rule would move it 250 px to one side)."""
+    from zeroshot_calib_ros.core.lens.models import KannalaBrandtCamera
+    cycle, _ = started(tmp_path)
+    lens = KannalaBrandtCamera(209.18, 209.18, 321.0, 176.3, 640, 360, [0.0, 0.0, 0.0, 0.0])
+    refined, _ = cycle.for_refinement(lens, Settings.from_values(values()))
+    cycle.accept(refined)
+    _, active, _ = cycle.for_parameters({'balance'}, values(balance=0.5))
+    assert active.source == 'refined'
+    np.testing.assert_allclose(active.calibration.P[:2, 2], [321.0, 176.3])
+    assert active.calibration.P[0, 0] != pytest.approx(refined.calibration.P[0, 0])
 
 
 def test_a_refined_calibrations_P_is_chosen_by_balance_and_fov_scale_as_the_zero_shot_ones(tmp_path):

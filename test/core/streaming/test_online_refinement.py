@@ -484,13 +484,35 @@ def test_frames_offered_while_the_worker_is_busy_are_dropped_uncopied_and_uncoun
 
 def test_the_refined_record_chooses_p_by_balance_and_fov_scale():
     """The ROS record of a refined camera: P is the rectified camera chosen by balance and
-    fov_scale (as a zero-shot record's), at the record's size."""
-    from zeroshot_calib_ros.core.ros_formats.rectify import new_camera_matrix
+    fov_scale, at the record's size, its principal point the refined camera's own (as
+    camera_calibration writes P for a fisheye)."""
+    from zeroshot_calib_ros.core.ros_formats.rectify import principal_point_camera_matrix
     for balance, fov_scale in ((0.0, 1.0), (0.5, 1.0), (0.0, 0.8), (1.0, 1.3)):
         record = refined_calibration(TRUE, 1280, 720, balance, fov_scale)
-        np.testing.assert_allclose(record.P[:, :3], new_camera_matrix(TRUE.scaled(1280, 720), balance, fov_scale))
+        scaled = TRUE.scaled(1280, 720)
+        np.testing.assert_allclose(record.P[:, :3], principal_point_camera_matrix(scaled, balance, fov_scale))
+        np.testing.assert_allclose(record.P[:2, 2], [scaled.cx, scaled.cy])
         np.testing.assert_array_equal(record.P[:, 3], 0.0)
     assert not np.allclose(refined_calibration(TRUE, 640, 360, 0.5, 0.8).P, refined_calibration(TRUE, 640, 360).P)
+
+
+def test_a_refined_lens_near_180_degrees_is_rectified_around_its_own_principal_point():
+    """A refined 175-degree lens whose principal point is 1 px off the image centre: image_rect
+    shows the scene around the optical axis. OpenCV's rule (P centred on the mean of the
+    undistorted edge midpoints) puts P's principal point 250 px to one side for it, and image_rect
+    would show that side of the scene only."""
+    from zeroshot_calib_ros.core.ros_formats.rectify import new_camera_matrix
+    lens = KannalaBrandtCamera(209.18, 209.18, 321.0, 176.3, 640, 360, [0.0, 0.0, 0.0, 0.0])
+    assert abs(new_camera_matrix(lens)[0, 2] - 321.0) > 200  # the trap: 571 px, 250 px to one side
+    record = refined_calibration(lens, 640, 360)
+    assert record.P[0, 2] == pytest.approx(321.0) and record.P[1, 2] == pytest.approx(176.3)
+    # balance 0: the middle of every edge of image_rect shows the raw image (no black border
+    # there), and the tightest one reaches the raw image's edge
+    f, cx, cy = record.P[0, 0], 321.0, 176.3
+    middles = np.array([[0.0, cy], [640.0, cy], [cx, 0.0], [cx, 360.0]])
+    raw = lens.project(np.column_stack([(middles - [cx, cy]) / f, np.ones(4)]))
+    inside = np.minimum(raw, [640.0, 360.0] - raw)
+    assert np.all(inside >= -0.01) and np.min(np.abs(inside[np.arange(4), [0, 0, 1, 1]])) < 1.0
 
 
 def test_refined_plumb_bob_keeps_a_camera_whose_pixels_are_not_square():

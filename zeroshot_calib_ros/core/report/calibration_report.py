@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -108,6 +108,9 @@ class ReportData:
     board: Optional[BoardViews] = None
     warnings: Sequence[str] = ()
     camera_name: str = 'camera'
+    rectified: Callable = new_camera_matrix
+    """The rule that makes the P written from the camera, ``balance`` and ``fov_scale``
+    (``core.ros_formats.rectify``): the preview shows what that P shows."""
 
 
 @dataclass
@@ -372,7 +375,7 @@ def _rectified(canvas, body: Rect, data: ReportData):
     else:
         image = cube_grid(small)
     try:
-        P = new_camera_matrix(small, data.balance, data.fov_scale)
+        P = data.rectified(small, data.balance, data.fov_scale)
         rectified = Rectifier(small, P=P).rectify(image)
     except (ValueError, cv2.error) as exc:
         put_wrapped(canvas, f'no preview: {exc}', body.x + 14, body.y + 20, body.w - 28, 0.45, MUTED, 1, 8)

@@ -20,7 +20,7 @@ import numpy as np
 from ..ros_formats.calibration_file import CameraCalibration
 from .heap import return_free_memory
 from ..lens.models import CameraModel
-from ..ros_formats.rectify import Rectifier, new_camera_matrix
+from ..ros_formats.rectify import Rectifier, principal_point_camera_matrix
 
 ENCODINGS: Dict[str, Tuple[np.dtype, int]] = {
     'mono8': (np.dtype(np.uint8), 1), 'mono16': (np.dtype(np.uint16), 1),
@@ -279,8 +279,11 @@ class ActiveCalibration:
 
     def with_rectification(self, balance: float, fov_scale: float,
                            build_maps: bool = True) -> 'ActiveCalibration':
-        """The same calibration with P chosen by ``balance`` and ``fov_scale`` (new object)."""
-        P = np.hstack([new_camera_matrix(self.camera, balance, fov_scale), np.zeros((3, 1))])
+        """The same calibration with P chosen by ``balance`` and ``fov_scale`` (new object), its
+        principal point the camera's own (``principal_point_camera_matrix``: a calibrated camera
+        is not centred in its image, and OpenCV's rule can put P's principal point off it; the
+        spec's zero-shot camera is solved again instead, ``CalibrationCycle.for_parameters``)."""
+        P = np.hstack([principal_point_camera_matrix(self.camera, balance, fov_scale), np.zeros((3, 1))])
         record = dataclasses.replace(self.calibration, P=P)  # keeps every other field
         return ActiveCalibration(record, self.camera, self.source, self.generation + 1,
                                  self.rectify_enabled, self.interpolation, build_maps=build_maps,

@@ -52,7 +52,7 @@ from ..lens.fitting import DISTORTION_FITS
 from ..lens.models import KannalaBrandtCamera
 from ..zeroshot.spec import CameraSpec
 from ..ros_formats.calibration_file import CameraCalibration
-from ..ros_formats.rectify import new_camera_matrix
+from ..ros_formats.rectify import principal_point_camera_matrix
 
 DEFAULT_INTERVAL = 2.0
 """Seconds between kept frames (the node's ``refine_interval``)."""
@@ -144,7 +144,11 @@ def refined_calibration_and_fit(camera: KannalaBrandtCamera, width: int, height:
         fit = DISTORTION_FITS[distortion_model](camera)
         camera, error = fit.camera, float(fit.max_error_px)
     D = camera.D if distortion_model == 'equidistant' else fit.D
-    P = np.hstack([new_camera_matrix(camera, balance, fov_scale), np.zeros((3, 1))])
+    # P's principal point is the refined camera's own, as camera_calibration writes P for a
+    # fisheye: OpenCV's rule centres P on the mean of the undistorted edge midpoints, which for a
+    # lens near 180 degrees follows whichever edge is nearer 90 degrees (a principal point 1 px
+    # off-centre can put P's off the image, and image_rect would show one side of the scene)
+    P = np.hstack([principal_point_camera_matrix(camera, balance, fov_scale), np.zeros((3, 1))])
     return (CameraCalibration(width, height, camera.K, distortion_model, D, np.eye(3), P, camera_name),
             error)
 
