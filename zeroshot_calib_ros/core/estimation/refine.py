@@ -683,7 +683,9 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
     processes at once (``core.lines.detection_processes``: fresh interpreters, started and ended
     by this call; the caller's ``__main__`` is not run again), the views of one image in that many
     threads, and the fits' Jacobians computed in that many threads (``problem.jacobian_threads``);
-    the curves are the same, in the same order, and the Jacobians the same as in one thread.
+    the first round's curves are the same, in the same order, and the Jacobians the same as in
+    one thread (up to the last digits of a BLAS whose sums depend on where the arrays lie in
+    memory, as numpy 1.26's OpenBLAS does on some CPUs, run to run).
 
     Each image's usable region (``core.lines.image_region.find_image_region``, or ``regions`` if
     already found) keeps the detector off an image circle's boundary and off black borders; the
