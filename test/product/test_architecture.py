@@ -165,7 +165,6 @@ TESTED_THROUGH = {
     'core/estimation/problem.py': ('test/core/estimation/test_refine.py', 'the loss, the Jacobian'),
     'core/estimation/terms.py': ('test/core/estimation/test_refine.py', 'refine\'s FOV terms, priors'),
     'core/estimation/uncertainty.py': ('test/core/estimation/test_refine.py', 'refine\'s error bar'),
-    'core/lines/straightness.py': ('test/core/estimation/test_refine.py', 'the residual refine fits'),
     'core/lens/fitting.py': ('test/core/lens/test_models.py', 'the models\' ROS fits'),
     'core/lens/projections.py': ('test/core/zeroshot/test_solver.py', 'the laws, by Table 2'),
     'core/report/canvas.py': ('test/core/report/test_calibration_report.py', 'what it draws'),
