@@ -728,7 +728,8 @@ def test_each_round_fits_the_curves_it_made_and_no_earlier_rounds(monkeypatch):
         assert sorted(gradients) == [0, 1]
         assert all(np.array_equal(gradients[k], image_gradients(image)) for k, image in enumerate(images))
 
-def scripted_rounds(monkeypatch, decisions, seen=None):
+
+def scripted_rounds(monkeypatch, decisions):
     """refine_from_images with detection stubbed out and ``refine_from_frames`` answering round k
     with a camera of its own (fx = 400 + k), accepted as ``decisions[k]`` says; returns the list
     of the fits' ``image_circle`` arguments."""
