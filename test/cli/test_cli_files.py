@@ -369,3 +369,26 @@ def test_solve_refuses_a_preset_at_another_aspect_ratio(capsys):
     status, out, err = run(capsys, 'solve', '--preset', 'gopro_hero9_wide', '--width', '1280', '--height', '720',
                            '--json')
     assert status == 0 and json.loads(out)['width'] == 1280
+
+
+@pytest.mark.parametrize('command', ['refine', 'rectify'])
+def test_an_empty_image_file_is_refused_as_empty(tmp_path, capsys, command):
+    """An empty file (a photo whose copy failed): one line saying so, not OpenCV's assertion about
+    its buffer."""
+    path = tmp_path / 'empty.png'
+    path.write_bytes(b'')
+    argv = (['refine', path, '--hfov', '100'] if command == 'refine' else
+            ['rectify', path, '-o', tmp_path / 'out.png', '--hfov', '100'])
+    status, out, err = run(capsys, *argv)
+    one_line_error(status, err, str(path))
+    assert 'the file is empty' in err[0] and 'OpenCV' not in err[0] and 'Assertion' not in err[0], err
+
+
+def test_a_debug_image_opencv_cannot_write_names_its_option(tmp_path, capsys):
+    """`refine --debug-image out.txt`: the error names --debug-image (the option given), not -o, and
+    the formats allowed; nothing is computed or written."""
+    path = _jpeg(tmp_path)
+    debug = tmp_path / 'out.txt'
+    status, out, err = run(capsys, 'refine', path, '--hfov', '100', '--debug-image', debug)
+    one_line_error(status, err, f'--debug-image {debug}', 'allowed: ', '.png')
+    assert ' -o ' not in err[0] and not debug.exists(), err

@@ -338,3 +338,37 @@ def test_the_top_level_help_lists_every_exit_status(capsys):
     assert status == 0
     assert all(code in text for code in ('0 done', '1 some --batch rows failed', '2 bad input', '3 refine / calibrate'))
     assert 'did not adopt' in text and 'zero-shot camera' in text
+
+
+def test_the_progress_line_fits_the_terminal(monkeypatch):
+    """A progress line longer than the terminal is wide wraps, and the next ``\\r`` rewrites only
+    its last row, leaving the others on the screen: the line is cut to the terminal's width (a
+    real terminal of 60 columns; a stream without its own terminal takes ``COLUMNS``)."""
+    import fcntl
+    import pty
+    import struct
+    import termios
+    leader, follower = pty.openpty()
+    fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack('HHHH', 24, 60, 0, 0))
+    with os.fdopen(follower, 'w') as terminal:
+        line = cli_output.ProgressLine(terminal, 'refine')
+        assert line.in_place
+        for k in range(3):
+            line(f'round {k + 1} of 2: detection, image 1 of 4, 200 lines; current estimate f 367.7 px, '
+                 'principal point (378.6, 224.9) px')
+        line.close()
+    shown = os.read(leader, 4096).decode()
+    os.close(leader)
+    rows = shown.replace('\r\n', '\n').split('\r')[1:]
+    assert len(rows) == 3 and all(0 < len(row.rstrip('\n')) <= 59 for row in rows), rows
+    assert rows[0].startswith('zeroshot-calib: refine round 1 of 2')
+
+    class Screen(io.StringIO):
+        def isatty(self):
+            return True
+    monkeypatch.setenv('COLUMNS', '40')
+    screen = Screen()
+    line = cli_output.ProgressLine(screen, 'refine')
+    line('x' * 100)
+    line('short')
+    assert screen.getvalue() == '\r' + 'zeroshot-calib: refine ' + 'x' * 16 + '\r' + 'zeroshot-calib: refine short'.ljust(39)

@@ -294,6 +294,9 @@ def test_progress_is_silent_on_a_pipe_and_shown_with_the_flag(views, capsys, mon
     assert lines[0].startswith('zeroshot-calib: refine round 1/2: 1/2 images, ') and 'lines found' in lines[0]
     assert 'f ' in lines[0] and 'principal point (' in lines[0]
     assert any('fitted' in line for line in lines)
+    # a round's fit is not the verdict (a later round may return another): it passes or fails the gate
+    fitted = [line for line in lines if 'fitted' in line]
+    assert all(line.endswith(('(passes the gate)', '(fails the gate)')) for line in fitted), fitted
     # a terminal: shown without the flag, one line rewritten in place; --json keeps it quiet. What
     # is printed where is the CLI's; the refinement (its result, its reports) is the one above,
     # replayed: the same reports to whatever callback the CLI passes (test_refine_reports_progress_

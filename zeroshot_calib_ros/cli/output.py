@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 import sys
 
 import cv2
@@ -119,17 +120,18 @@ def _can_write_image(path):
         return False
 
 
-def check_output_image(path):
+def check_output_image(path, option='-o'):
+    """One error line naming ``option``, before any work, when OpenCV cannot write an image to ``path``."""
     if not _can_write_image(path):
         supported = [e for e in IMAGE_EXTENSIONS if _can_write_image('x' + e)]
-        raise CliError(f'-o {path}: OpenCV {cv2.__version__} cannot write '
+        raise CliError(f'{option} {path}: OpenCV {cv2.__version__} cannot write '
                        f'{os.path.splitext(path)[1] or "a file without an extension"}: allowed: '
                        f'{", ".join(supported)}')
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
-        raise CliError(f'-o {path}: cannot write image: directory {directory} does not exist')
+        raise CliError(f'{option} {path}: cannot write image: directory {directory} does not exist')
     if os.path.isdir(path):
-        raise CliError(f'-o {path}: cannot write image: it is a directory')
+        raise CliError(f'{option} {path}: cannot write image: it is a directory')
 
 
 def check_png_output(path, option):
@@ -204,8 +206,19 @@ def _is_terminal(stream) -> bool:
         return False
 
 
+def _columns(stream) -> int:
+    """The width of the terminal ``stream`` writes to (its own, else the one ``COLUMNS`` or stdout
+    say, else 80)."""
+    try:
+        return os.get_terminal_size(stream.fileno()).columns
+    except (AttributeError, ValueError, OSError):  # no file number (a test's stream), or no terminal
+        return shutil.get_terminal_size().columns
+
+
 class ProgressLine:
-    """Progress on a stream: one line rewritten in place (``\r``) on a terminal, a line per report
+    """Progress on a stream: one line rewritten in place (``\r``) on a terminal, cut to the
+    terminal's width (a longer line wraps, and ``\r`` then rewrites only its last row, leaving the
+    others behind on the screen), a line per report
     elsewhere (a log file has no use for carriage returns). ``refine``, ``calibrate`` and
     ``evaluate`` report through it (``progress_line``); any other output first ends the line
     (``end_progress``)."""
@@ -222,6 +235,7 @@ class ProgressLine:
     def __call__(self, text) -> None:
         text = self.prefix + text
         if self.in_place:
+            text = text[:max(1, _columns(self.stream) - 1)]  # the last column would wrap the cursor
             self.stream.write('\r' + text.ljust(self.width))
             self.width = len(text)
             ProgressLine.active = self

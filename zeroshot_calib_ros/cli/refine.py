@@ -61,7 +61,7 @@ def run(args):
     from ..core.estimation.refine import circle_diameter_agrees, refine_from_images  # scipy: only when asked
     from ..core.lines.image_region import combine_circles, find_image_region
     if args.debug_image:
-        check_output_image(args.debug_image)
+        check_output_image(args.debug_image, '--debug-image')
     images, names, seen = [], [], {}
     for path in args.images:
         key = os.path.realpath(path)
@@ -158,8 +158,11 @@ def run(args):
         print(summary_text(summary) + '\n' + uncertainty_line(summary, args.fov_tolerance))
         print(_image_circle_line(summary['image_circle']))
         if result.static_curves:
-            print(f'left out  {len(result.static_curves)} curves at the same pixels in the images while the scene '
-                  "moved (the vehicle's or robot's own body, lens dirt): not the scene's lines")
+            # a still camera with much moving in front of it (a board, people) looks the same: say how
+            # to keep its lines
+            print(f'left out  {len(result.static_curves)} curves at the same pixels in the images while the rest '
+                  "moved: taken for the vehicle's or robot's own body or lens dirt (a camera that stood still "
+                  'while things moved in front of it: give one image, whose lines are all kept)')
         if result.curves_bowed:
             print(f'left out  {result.curves_bowed} curves bowing toward the image centre (a bonnet, a body\'s edge): '
                   'this lens bows straight lines the other way')
@@ -233,5 +236,6 @@ def _refine_progress_text(p) -> str:
     if p.stage == 'detection':
         return (f'round {p.round}/{p.rounds}: {p.frames_done}/{p.frames} images, {p.lines} lines found; '
                 f'looking with {estimate}')
+    # not "accepted": a later round may return another fit, and the verdict comes with the result
     return (f'round {p.round}/{p.rounds}: fitted {p.lines} lines: {estimate} '
-            f'({"accepted" if p.accepted else "not accepted"})')
+            f'({"passes" if p.accepted else "fails"} the gate)')

@@ -199,6 +199,8 @@ def read_image(path, flags: int = -1, finite: bool = False):
     if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
         raise InputFileError(f'cannot read image {path}: it is {size[0]}x{size[1]} pixels: allowed: at most '
                              f'{_BUDGET_TEXT} ({MAX_IMAGE_PIXELS} pixels)')
+    if not data:  # (OpenCV's own message for it is an assertion about its buffer)
+        raise InputFileError(f'cannot read image {path}: the file is empty: allowed: an image file')
     if data[:2] == b'\xff\xd8' and not _jpeg_complete(data):
         raise InputFileError(f'cannot read image {path}: the JPEG file is truncated (no end-of-image marker): '
                              'allowed: a complete image file')

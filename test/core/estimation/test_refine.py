@@ -594,6 +594,9 @@ def test_one_camera_with_a_wrong_spec_is_the_spec_disagreeing_not_the_images():
     assert not result.accepted
     assert result.reason.startswith('disagreement between the lines and the spec'), result.reason
     assert np.allclose(result.camera.K, result.zero_shot_camera.K)
+    # the lines' FOV follows the spec given (they hardly fix the scale): the user is sent to the
+    # spec sheet, not invited to give that FOV back
+    assert 'deg); check the spec sheet' in result.reason and 'would not be a measurement' in result.reason
 
 
 @pytest.mark.parametrize('deviation, order', [([0, 0, 0, 0], 0), ([0.004, 0, 0, 0], 1), ([0.004, -0.002, 0, 0], 2)])

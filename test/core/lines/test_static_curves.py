@@ -193,6 +193,7 @@ def test_the_cli_says_what_it_left_out_and_draws_it(vehicle_frames, tmp_path, ca
     assert status == (0 if 'refined   yes' in out else 3), err  # 3: ran, not refined (documented)
     left_out = [line for line in out.splitlines() if line.startswith('left out')]
     assert len(left_out) == 1 and "own body" in left_out[0], out
+    assert 'stood still' in left_out[0] and 'give one image' in left_out[0], out  # what a still camera does
     assert int(left_out[0].split()[2]) >= 3
     canvas = cv2.imread(debug)
     panels = sheet_panels(canvas, H / W)  # the contact sheet: a panel per frame
