@@ -343,3 +343,27 @@ def test_the_concrete_commands_of_docs_report_md_run_and_write_their_pictures(tm
         assert status == 0, (command, err)
         target = argv[argv.index('--report') + 1]
         assert (tmp_path / target).is_file() and f'wrote {target}' in out
+
+
+@pytest.mark.parametrize('width', [752, 1280])
+def test_the_contact_sheets_legend_is_never_cut_at_its_edge(width):
+    """One 752 x 480 image makes a sheet 776 px wide, narrower than the legend's three entries in
+    one row: the legend goes on in a second row instead of running off the sheet (its last entry
+    read "left out: stayed put across the i"). Nothing is drawn in the right margin of the header."""
+    from types import SimpleNamespace
+    from zeroshot_calib_ros.core.estimation.refine import zero_shot_camera
+    height = width * 480 // 752
+    spec = CameraSpec(width, height, hfov=121.4, vfov=76.0)
+    kb = zero_shot_camera(spec, width, height)
+    image = np.full((height, width), 128, np.uint8)
+    result = SimpleNamespace(curves=[], used=np.zeros(0, bool), static_curves=[], accepted=False,
+                             reason='too few lines', camera=kb)
+    sheet = debug_sheet.render_debug_sheet([image], ['left_fisheye_img_0.png'], result, kb).image
+    panels = pictures.sheet_panels(sheet, height / width)
+    header = sheet[:panels[0][1] - debug_sheet.LABEL_H]
+    ink = np.any(header != np.array(canvas.PAPER, np.uint8), axis=2)
+    columns = np.nonzero(ink.any(axis=0))[0]
+    assert columns.max() < sheet.shape[1] - debug_sheet.MARGIN // 2, (columns.max(), sheet.shape[1])
+    # all three entries are drawn: their strokes' colours are in the header
+    for colour in (canvas.CURVE_USED, canvas.CURVE_REJECTED, canvas.CURVE_STATIC):
+        assert np.all(header == np.array(colour, np.uint8), axis=2).sum() > 20, colour

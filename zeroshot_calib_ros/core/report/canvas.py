@@ -382,6 +382,18 @@ def legend_width(entries: Sequence[Tuple[str, tuple]], scale: float = 0.45) -> i
     return sum(28 + text_width(text, scale) + 18 for text, _ in entries) - 18
 
 
+def legend_rows(entries: Sequence[Tuple[str, tuple]], max_width: int, scale: float = 0.45) -> List[list]:
+    """``entries`` (text, colour) in rows of at most ``max_width`` px each (``legend``'s layout),
+    in order; an entry wider than that alone on its row."""
+    rows: List[list] = []
+    for entry in entries:
+        if rows and legend_width(rows[-1] + [entry], scale) <= max_width:
+            rows[-1].append(entry)
+        else:
+            rows.append([entry])
+    return rows
+
+
 def legend(canvas, x: int, y: int, entries: Sequence[Tuple[str, tuple]], scale: float = 0.45,
            line: bool = True) -> int:
     """Entries (text, colour) left to right from (x, y), each a short stroke (or a square) and its

@@ -25,8 +25,8 @@ import numpy as np
 from ..lines.detect import draw_curves
 from ..ros_formats.rectify import Rectifier, new_camera_matrix
 from .calibration_report import verdict_text
-from .canvas import (CURVE_REJECTED, CURVE_STATIC, CURVE_USED, INK, MUTED, PAPER, as_bgr, legend, put_text,
-                     put_wrapped, text_width, wrapped_height)
+from .canvas import (CURVE_REJECTED, CURVE_STATIC, CURVE_USED, INK, MUTED, PAPER, as_bgr, legend, legend_rows,
+                     line_height, put_text, put_wrapped, text_width, wrapped_height)
 
 MAX_WIDTH = 1280
 MAX_HEIGHT = 2000
@@ -80,15 +80,26 @@ def render_debug_sheet(images: Sequence[np.ndarray], names: Sequence[str], resul
     rows = int(math.ceil(n / cols))
     s = min(1.0, (MAX_WIDTH - 2 * MARGIN - (cols - 1) * GAP) / (cols * w))
     verdict, colour = verdict_text(result.accepted, result.reason, 'refine')
+    curves = list(getattr(result, 'curves', None) or [])
+    used_mask = getattr(result, 'used', None)
+    used_mask = np.zeros(len(curves), bool) if used_mask is None else np.asarray(used_mask, bool)
+    static = list(getattr(result, 'static_curves', None) or [])
+    totals = (int(used_mask.sum()), int(len(curves) - used_mask.sum()), len(static))
+    entries = [(f'used by the fit ({totals[0]})', CURVE_USED),
+               (f'rejected: not straight, or bowing toward the centre ({totals[1]})', CURVE_REJECTED),
+               (f'left out: stayed put across the images ({totals[2]})', CURVE_STATIC)]
+    legend_step = line_height(0.45) + 6
     # keep the sheet about MAX_HEIGHT high: the panels scaled down further if needed (the header
     # counted at its largest, the rectified pair at half the sheet's width each)
-    fixed = 2 * MARGIN + 4 * 24 + 38 + 2 * GAP + LABEL_H + (MAX_WIDTH // 2) * h / w + rows * LABEL_H + (rows - 1) * GAP
+    fixed = 2 * MARGIN + 4 * 24 + 38 + 2 * legend_step + 2 * GAP + LABEL_H + (MAX_WIDTH // 2) * h / w + rows * LABEL_H + (rows - 1) * GAP
     if rows * h * s > MAX_HEIGHT - fixed > 0:
         s = (MAX_HEIGHT - fixed) / (rows * h)
     pw = max(1, int(w * s))  # rounded down: the row never wider than MAX_WIDTH
     ph = max(1, int(round(h * pw / w)))
     width = max(2 * MARGIN + cols * pw + (cols - 1) * GAP, 640)
-    header_h = wrapped_height(verdict, width - 2 * MARGIN, 0.55, 1, 4) + 38
+    # the legend in as many rows as the sheet's width needs (a narrow sheet cut its last entry)
+    legend_lines = legend_rows(entries, width - 2 * MARGIN)
+    header_h = wrapped_height(verdict, width - 2 * MARGIN, 0.55, 1, 4) + 38 + (len(legend_lines) - 1) * legend_step
     # the first image rectified twice, side by side below the panels (MAX_HEIGHT assumed them at
     # most half the sheet's width each)
     pair_w = max(1, min(w, (width - 2 * MARGIN - GAP) // 2, max(pw, PAIR_WIDTH)))
@@ -101,14 +112,8 @@ def render_debug_sheet(images: Sequence[np.ndarray], names: Sequence[str], resul
     # header: the verdict and the legend
     y = MARGIN
     y = put_wrapped(canvas, verdict, MARGIN, y, width - 2 * MARGIN, 0.55, colour, 1, 4)
-    curves = list(getattr(result, 'curves', None) or [])
-    used_mask = getattr(result, 'used', None)
-    used_mask = np.zeros(len(curves), bool) if used_mask is None else np.asarray(used_mask, bool)
-    static = list(getattr(result, 'static_curves', None) or [])
-    totals = (int(used_mask.sum()), int(len(curves) - used_mask.sum()), len(static))
-    legend(canvas, MARGIN, y + 6, [(f'used by the fit ({totals[0]})', CURVE_USED),
-                                   (f'rejected: not straight, or bowing toward the centre ({totals[1]})', CURVE_REJECTED),
-                                   (f'left out: stayed put across the images ({totals[2]})', CURVE_STATIC)], 0.45)
+    for k, row in enumerate(legend_lines):
+        legend(canvas, MARGIN, y + 6 + k * legend_step, row, 0.45)
     y = MARGIN + header_h + GAP
 
     by_image = _curves_by_image(curves, n)
@@ -144,8 +149,11 @@ def render_debug_sheet(images: Sequence[np.ndarray], names: Sequence[str], resul
     # not written; none when no fit was made), one P (zero-shot's)
     P = new_camera_matrix(zero_shot_camera, balance, fov_scale)
     fitted = result.camera if result.accepted else getattr(result, 'refined_camera', None)
+    # the refined view's title says the P: its principal point moved, so a margin of the view can
+    # be outside the image (black), which the written file's own P does not show
     titles = ('image 1 rectified with the zero-shot camera',
-              'with the refined camera' + (' (written)' if result.accepted else ' (refused: not written)'))
+              ('with the refined camera (written)' if result.accepted else 'the refined camera (refused)')
+              + ", zero-shot's P")
     for k, camera in enumerate((zero_shot_camera, fitted)):
         if camera is None:
             put_text(canvas, 'no refined camera: no fit was made', MARGIN + pair_w + GAP, y + 4, 0.45, MUTED, 1)
