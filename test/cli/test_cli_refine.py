@@ -69,6 +69,12 @@ def test_refine_recovers_the_true_camera_and_writes_it(views, capsys, tmp_path):
     record = json.loads(out)
     assert SOLVE_KEYS <= set(record) and REFINEMENT_KEYS == set(record['refinement'])
     assert record['refinement']['accepted'] is True, record['refinement']['reason']
+    # every key of `solve --json` when accepted too: the refined camera's error bar, no assumption
+    assert main(['solve', '--width', '640', '--height', '360', *SPEC_FLAGS, '--json']) == 0
+    solved = json.loads(capsys.readouterr()[0])
+    assert set(solved) <= set(record), set(solved) - set(record)
+    assert record['assumption'] is None and record['uncertainty_over'] == 'image'
+    assert record['uncertainty'] and record['uncertainty'] != solved['uncertainty']
     assert record['refinement']['images_used'] == 3
     assert '#' not in yaml_path.read_text()  # refined: no "not refined" comment
     refined = CameraCalibration.load(str(yaml_path))
@@ -174,6 +180,11 @@ def test_images_without_lines_give_the_zero_shot_camera_and_the_reason(capsys, t
     assert main(['solve', '--width', '640', '--height', '360', *SPEC_FLAGS, '--json']) == 0
     solved = json.loads(capsys.readouterr()[0])
     assert record['uncertainty_px'] == pytest.approx(solved['uncertainty_px'])
+    # every key of `solve --json` (docs/cli.md), with solve's values for the error bar and the
+    # assumption: a client reads them without asking what the verdict was
+    assert set(solved) <= set(record), set(solved) - set(record)
+    for key in ('assumption', 'uncertainty', 'uncertainty_over', 'uncertainty_lens_shape_px'):
+        assert record[key] == solved[key], key
 
 
 def test_images_of_two_cameras_are_not_adopted(views, capsys, tmp_path):
@@ -232,6 +243,35 @@ def test_circle_fov_alone_measures_the_circle_diameter_in_the_images(circular_vi
     camera = KannalaBrandtCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], 640, 480, D)
     edge = camera.project(np.array([[np.sin(np.radians(95)), 0.0, np.cos(np.radians(95))]]))[0]
     assert abs((edge[0] - camera.cx) - circle['diameter'] / 2) < 0.03 * circle['diameter'] / 2, (edge, circle)
+    # the error bar says what it is over: the image circle for zero-shot of a circle-only spec (as
+    # `solve` says), the refined camera's own domain otherwise
+    if not record['refinement']['accepted']:
+        assert main(['solve', '--width', '640', '--height', '480', '--circle-fov', '190',
+                     '--circle-diameter', str(circle['diameter']), '--json']) == 0
+        solved = json.loads(capsys.readouterr()[0])
+        assert record['uncertainty_over'] == solved['uncertainty_over'] == 'image circle'
+        assert record['uncertainty_px'] == pytest.approx(solved['uncertainty_px'], rel=1e-6)
+    else:
+        assert record['uncertainty_over'] in ('image', 'image circle')
+
+
+def test_a_refused_circular_fisheye_states_zero_shots_error_bar_over_its_circle(capsys, tmp_path):
+    """No lines through a circle-only spec: zero-shot is returned, and its error bar is `solve`'s,
+    over the image circle, said so in --json and in the text's error bar line."""
+    path = tmp_path / 'black.png'
+    cv2.imwrite(str(path), np.zeros((480, 640), np.uint8))
+    spec = ['--circle-fov', '190', '--circle-diameter', '460']
+    status, out, err = run(capsys, str(path), *spec, '--json')
+    assert status == NOT_REFINED, err
+    record = json.loads(out)
+    assert main(['solve', '--width', '640', '--height', '480', *spec, '--json']) == 0
+    solved = json.loads(capsys.readouterr()[0])
+    assert set(solved) <= set(record), set(solved) - set(record)
+    for key in ('assumption', 'uncertainty', 'uncertainty_over', 'uncertainty_lens_shape_px'):
+        assert record[key] == solved[key], key
+    assert record['uncertainty_over'] == 'image circle' and record['assumption']
+    status, text, err = run(capsys, str(path), *spec)
+    assert status == NOT_REFINED and 'error bar' in text and 'RMS over the image circle of' in text, text
 
 
 def test_a_given_circle_diameter_that_disagrees_with_the_images_is_warned_about(circular_view, capsys):

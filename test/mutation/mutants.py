@@ -2767,4 +2767,20 @@ MUTANTS = [
         behaviour='a --debug-image format OpenCV cannot write: the error names --debug-image',
         tests=['test/cli/test_cli_files.py::test_a_debug_image_opencv_cannot_write_names_its_option'],
     ),
+    dict(
+        id='refine-json-error-bar-over-the-image-always',
+        file=f'{PKG}/cli/refine.py',
+        old="    summary['uncertainty_over'] = 'image circle' if bar is not None and bar.circle_radius is not None else 'image'\n",
+        new='',
+        behaviour='refine --json has every key of solve --json; a refused circular fisheye\'s error bar is over its circle',
+        tests=['test/cli/test_cli_refine.py::test_a_refused_circular_fisheye_states_zero_shots_error_bar_over_its_circle'],
+    ),
+    dict(
+        id='refine-json-assumption-kept-when-accepted',
+        file=f'{PKG}/cli/refine.py',
+        old="    summary['assumption'] = None if result.accepted else summary.get('assumption')\n",
+        new="    summary['assumption'] = summary.get('assumption', 'the lens shape of real lenses of that FOV')\n",
+        behaviour='an accepted refinement assumed nothing about the lens shape: assumption null',
+        tests=['test/cli/test_cli_refine.py::test_refine_recovers_the_true_camera_and_writes_it'],
+    ),
 ]

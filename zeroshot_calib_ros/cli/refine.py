@@ -128,6 +128,14 @@ def run(args):
     warnings = list(solution.warnings) + circle_warnings  # the spec's FOVs against the zero-shot camera
     warnings += [] if result.accepted else fit_warnings(solution, calibration, DISTORTION_FITS['equidistant'](solution.camera))
     summary['uncertainty_px'] = result.uncertainty_px if result.accepted else result.zero_shot_uncertainty_px
+    # every key of `solve --json` whatever the verdict (a client reads them without asking which):
+    # the error bar's how, its lens-shape part and what it is over, of the camera returned; no
+    # assumption when the lines fitted the lens's shape
+    bar = result.uncertainty
+    summary['assumption'] = None if result.accepted else summary.get('assumption')
+    summary['uncertainty'] = None if bar is None else bar.reason
+    summary['uncertainty_lens_shape_px'] = None if bar is None else bar.lens_shape_px
+    summary['uncertainty_over'] = 'image circle' if bar is not None and bar.circle_radius is not None else 'image'
     summary['refinement'] = json_safe({k: getattr(result, k) for k in REFINE_KEYS})
     summary['refinement']['curves_static'] = len(result.static_curves)
     if getattr(result, 'zero_shot_uncertainty', None) is not None and result.zero_shot_uncertainty.warning \
