@@ -84,6 +84,13 @@ def uncertainty_line(summary, fov_tolerance):
             f'pixel error, FOVs +- {fov_tolerance:g} deg{shapes})')
 
 
+def error_bar_keys(uncertainty, over_circle: bool) -> dict:
+    """`--json`'s keys on how an error bar (``core.estimation.uncertainty.Uncertainty``) was made,
+    its lens-shape part, and what it is over: the same keys for every verb that states one."""
+    return {'uncertainty': uncertainty.reason, 'uncertainty_lens_shape_px': uncertainty.lens_shape_px,
+            'uncertainty_over': 'image circle' if over_circle else 'image'}
+
+
 def kannala_brandt_record(camera, spec, model, args, distortion_model='equidistant', D=None, fit_error=0.0,
                            root_found=True, rectified=new_camera_matrix):
     """`solve --json`'s record of a Kannala-Brandt camera at the spec's size (refined or calibrated)

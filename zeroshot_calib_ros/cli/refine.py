@@ -17,8 +17,9 @@ from ..core.zeroshot.presets import spec_with_preset
 from ..core.zeroshot.solver import solve_zero_shot
 from .arguments import (EXIT_NOT_ADOPTED, EXIT_STATUSES, IMAGE_BUDGET, REPORT_HELP, CliError, add_circle_arguments,
                         add_fov_tolerance_argument, add_progress_argument, number)
-from .output import (check_output_image, fit_warnings, kannala_brandt_record, not_adopted, print_warnings,
-                     progress_line, read_input_image, save_calibration, uncertainty_line, write_png, write_report)
+from .output import (check_output_image, error_bar_keys, fit_warnings, kannala_brandt_record, not_adopted,
+                     print_warnings, progress_line, read_input_image, save_calibration, uncertainty_line, write_png,
+                     write_report)
 
 
 def add_parser(subparsers):
@@ -131,11 +132,9 @@ def run(args):
     # every key of `solve --json` whatever the verdict (a client reads them without asking which):
     # the error bar's how, its lens-shape part and what it is over, of the camera returned; no
     # assumption when the lines fitted the lens's shape
-    bar = result.uncertainty
-    summary['assumption'] = None if result.accepted else summary.get('assumption')
-    summary['uncertainty'] = None if bar is None else bar.reason
-    summary['uncertainty_lens_shape_px'] = None if bar is None else bar.lens_shape_px
-    summary['uncertainty_over'] = 'image circle' if bar is not None and bar.circle_radius is not None else 'image'
+    summary.update(error_bar_keys(result.uncertainty, result.uncertainty.circle_radius is not None))
+    if result.accepted:
+        summary['assumption'] = None
     summary['refinement'] = json_safe({k: getattr(result, k) for k in REFINE_KEYS})
     summary['refinement']['curves_static'] = len(result.static_curves)
     if getattr(result, 'zero_shot_uncertainty', None) is not None and result.zero_shot_uncertainty.warning \

@@ -12,8 +12,8 @@ from ..core.zeroshot.solver import NoConvergence, solve_zero_shot
 from ..core.zeroshot.spec import SpecError
 from .arguments import (REPORT_HELP, SOLVE_SPEC_FIELDS, CliError, add_circle_arguments, add_fov_tolerance_argument,
                         add_output_arguments, add_spec_arguments, options_given)
-from .output import (assumption_warnings, fit_warnings, print_warnings, save_calibration, uncertainty_line,
-                     write_report)
+from .output import (assumption_warnings, error_bar_keys, fit_warnings, print_warnings, save_calibration,
+                     uncertainty_line, write_report)
 
 
 def add_parser(subparsers):
@@ -106,10 +106,8 @@ def _add_uncertainty(summary, spec, solution, fov_tolerance):
     from ..core.estimation.uncertainty import image_circle_radius, zero_shot_uncertainty  # scipy: only when asked
     uncertainty = zero_shot_uncertainty(spec, fov_tolerance, solution)
     summary['uncertainty_px'] = uncertainty.rms_px
-    summary['uncertainty'] = uncertainty.reason
-    # of uncertainty_px, the part from the lens shapes a spec of one FOV (or the circle alone) leaves open
-    summary['uncertainty_lens_shape_px'] = uncertainty.lens_shape_px
-    summary['uncertainty_over'] = 'image circle' if image_circle_radius(spec) is not None else 'image'
+    # with, of uncertainty_px, the part from the lens shapes a spec of one FOV (or the circle alone) leaves open
+    summary.update(error_bar_keys(uncertainty, image_circle_radius(spec) is not None))
     return [uncertainty.warning] if uncertainty.warning else []
 
 
