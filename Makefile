@@ -95,10 +95,15 @@ $(BSTAMP): $(VSTAMP) $(SOURCES)
 # in log/test-ros-free-[12].log and log/test-jazzy-libs-[12].log and printed after the ROS run's;
 # the status fails if any run failed (pytest's status 5, no test selected, only when every run of
 # that environment had none, as one run of all of them would have said).
+# The test processes load numpy before the front ends could ask for one BLAS thread (cli/__init__.py),
+# so they are given it as the command and the node run: five processes on two cores with OpenBLAS's
+# own threads waiting beside them made the ROS-free run on Jazzy's libraries ~1.7x the CPU time
+# (a board fit 5x; benchmarks/results/blas_threads.md).
 TEST_BACKGROUND ?= chrt --idle 0
-LIBS_RUN = ZEROSHOT_ROS_FREE_ONLY=1 ZEROSHOT_SHARD=$(1)/2 $(TEST_BACKGROUND) $(LIBS_VENV)/bin/python -m pytest -q \
+TEST_BLAS = OPENBLAS_NUM_THREADS=1
+LIBS_RUN = $(TEST_BLAS) ZEROSHOT_ROS_FREE_ONLY=1 ZEROSHOT_SHARD=$(1)/2 $(TEST_BACKGROUND) $(LIBS_VENV)/bin/python -m pytest -q \
 	-p no:cacheprovider test $(PYTEST_ARGS) > log/test-jazzy-libs-$(1).log 2>&1; echo $$? > log/test-jazzy-libs-$(1).rc
-FREE_RUN = ZEROSHOT_ROS_FREE_ONLY=1 ZEROSHOT_SHARD=$(1)/2 $(ROS_ENV) $(TEST_BACKGROUND) $(VPY) -m pytest -q \
+FREE_RUN = $(TEST_BLAS) ZEROSHOT_ROS_FREE_ONLY=1 ZEROSHOT_SHARD=$(1)/2 $(ROS_ENV) $(TEST_BACKGROUND) $(VPY) -m pytest -q \
 	-p no:cacheprovider --durations=5 test $(PYTEST_ARGS) > log/test-ros-free-$(1).log 2>&1; echo $$? > log/test-ros-free-$(1).rc
 test: $(BSTAMP) $(LSTAMP)
 	@mkdir -p $(TOP)/log
@@ -106,7 +111,7 @@ test: $(BSTAMP) $(LSTAMP)
 	cd $(TOP) && { $(call LIBS_RUN,2); } & \
 	cd $(TOP) && { $(call FREE_RUN,1); } & \
 	cd $(TOP) && { $(call FREE_RUN,2); } & \
-	cd $(TOP) && ZEROSHOT_ROS_ONLY=1 $(ROS_ENV) $(VPY) -m pytest -q --durations=10 test $(PYTEST_ARGS); ros=$$?; wait; \
+	cd $(TOP) && $(TEST_BLAS) ZEROSHOT_ROS_ONLY=1 $(ROS_ENV) $(VPY) -m pytest -q --durations=10 test $(PYTEST_ARGS); ros=$$?; wait; \
 	echo '--- ROS-free tests, same libraries (log/test-ros-free-1.log, -2.log) ---'; \
 	cat log/test-ros-free-1.log log/test-ros-free-2.log; \
 	echo '--- ROS-free tests on Ubuntu 24.04 libraries (log/test-jazzy-libs-1.log, -2.log) ---'; \
@@ -119,10 +124,10 @@ test: $(BSTAMP) $(LSTAMP)
 	done
 
 test-ros: $(BSTAMP)
-	cd $(TOP) && $(ROS_ENV) $(VPY) -m pytest -q test $(PYTEST_ARGS)
+	cd $(TOP) && $(TEST_BLAS) $(ROS_ENV) $(VPY) -m pytest -q test $(PYTEST_ARGS)
 
 test-jazzy-libs: $(LSTAMP)
-	cd $(TOP) && ZEROSHOT_ROS_FREE_ONLY=1 $(LIBS_VENV)/bin/python -m pytest -q test $(PYTEST_ARGS)
+	cd $(TOP) && $(TEST_BLAS) ZEROSHOT_ROS_FREE_ONLY=1 $(LIBS_VENV)/bin/python -m pytest -q test $(PYTEST_ARGS)
 
 # `make run PARAMS=config/c922.yaml ARGS='-p hfov:=118 -r __ns:=/front'`: what
 # `ros2 run zeroshot_calib_ros node --ros-args --params-file PARAMS ARGS` does with a system ROS.

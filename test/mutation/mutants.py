@@ -2783,4 +2783,28 @@ MUTANTS = [
         behaviour='an accepted refinement assumed nothing about the lens shape: assumption null',
         tests=['test/cli/test_cli_refine.py::test_refine_recovers_the_true_camera_and_writes_it'],
     ),
+    dict(
+        id='command-blas-threads-left-to-openblas',
+        file=f'{PKG}/cli/__init__.py',
+        old="os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')\n",
+        new="pass\n",
+        behaviour='the command runs OpenBLAS on one thread (beside a busy process its threads slowed fits several times)',
+        tests=['test/product/test_blas_threads.py::test_the_front_ends_run_blas_on_one_thread_unless_the_user_says_otherwise'],
+    ),
+    dict(
+        id='node-blas-threads-overrides-the-user',
+        file=f'{PKG}/ros/__init__.py',
+        old="os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')\n",
+        new="os.environ['OPENBLAS_NUM_THREADS'] = '1'\n",
+        behaviour="the node runs OpenBLAS on one thread unless the user's OPENBLAS_NUM_THREADS says otherwise",
+        tests=['test/product/test_blas_threads.py::test_the_front_ends_run_blas_on_one_thread_unless_the_user_says_otherwise'],
+    ),
+    dict(
+        id='pose-jacobian-stepped-the-wrong-way',
+        file=f'{PKG}/core/checkerboard/pose.py',
+        old="        stepped = np.concatenate([p + steps, p - steps]).reshape(-1, 6)\n",
+        new="        stepped = np.concatenate([p - steps, p + steps]).reshape(-1, 6)\n",
+        behaviour='board poses refined to the pixel error minimum through any camera model',
+        tests=['test/core/checkerboard/test_evaluation.py', 'test/core/checkerboard/test_calibration.py'],
+    ),
 ]

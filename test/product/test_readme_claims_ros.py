@@ -240,10 +240,15 @@ def _echoed(output):
     """The CameraInfos `make echo` printed: (frame_id, width, height, distortion_model, d, k, p)."""
     messages = []
     # (Fast DDS writes its own log lines, in colour, to stdout too, e.g. when another process holds
-    # a shared-memory port: not ours)
+    # a shared-memory port, and a message of several lines has the colour on its first only: not
+    # ours, so a message is read from its `header:` line on)
     output = ''.join(line for line in output.splitlines(keepends=True) if '\x1b[' not in line)
     for doc in output.split('---\n')[:-1]:
-        data = yaml.safe_load(doc)
+        assert '\nheader:' in '\n' + doc, output
+        try:
+            data = yaml.safe_load(doc[('\n' + doc).rindex('\nheader:'):])
+        except yaml.YAMLError as e:
+            raise AssertionError(f'{e}: in what make echo printed:\n{output}') from e
         messages.append((data['header']['frame_id'], data['width'], data['height'], data['distortion_model'],
                          data['d'], data['k'], data['p']))
     return messages

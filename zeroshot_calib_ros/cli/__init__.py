@@ -20,6 +20,11 @@ import os
 # OpenCV's own pixel limit, read when cv2 loads (the header check of core/file_input.py comes
 # first; this covers formats whose header it does not parse). A user's setting wins.
 os.environ.setdefault('OPENCV_IO_MAX_IMAGE_PIXELS', '50000000')
+# One BLAS thread, read when numpy's OpenBLAS loads: the fits solve thousands of tiny systems, which
+# a second thread never speeds up, and beside a second run on the cores OpenBLAS's waiting threads
+# made `calibrate` 5x slower with Ubuntu 24.04's numpy (benchmarks/results/blas_threads.md). A
+# user's setting wins.
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 from .command import build_parser, main  # noqa: E402
 
