@@ -203,6 +203,9 @@ def test_images_of_two_cameras_are_not_adopted(views, capsys, tmp_path):
     # is how the FOV check that catches it would put it)
     assert refinement['accepted'] is False, refinement
     assert refinement['reason'].startswith('disagreement between images'), refinement['reason']
+    # the reason names the files, as given, not their positions in the list
+    named = [p for p in paths if p in refinement['reason']]
+    assert named and set(named) <= set(paths[2:]), refinement['reason']
     zero_shot = solve_zero_shot(CameraSpec(640, 360, hfov=172, vfov=97, dfov=198))
     assert record['f'] == pytest.approx(zero_shot.f) and record['cx'] == 320 and record['cy'] == 180
 

@@ -2807,4 +2807,28 @@ MUTANTS = [
         behaviour='board poses refined to the pixel error minimum through any camera model',
         tests=['test/core/checkerboard/test_evaluation.py', 'test/core/checkerboard/test_calibration.py'],
     ),
+    dict(
+        id='board-fit-blas-threads-left-to-openblas',
+        file=f'{PKG}/core/estimation/board_fit.py',
+        old="@one_blas_thread()  # its pose solves are tiny: OpenBLAS's threads only wait (problem.py)\n",
+        new="",
+        behaviour="a library caller's board fit runs OpenBLAS on one thread (its threads waiting beside a busy process took 5x the time)",
+        tests=['test/core/estimation/test_board_fit.py::test_the_board_fit_runs_openblas_in_one_thread_and_gives_the_threads_back'],
+    ),
+    dict(
+        id='refine-reason-names-image-positions',
+        file=f'{PKG}/core/estimation/refine.py',
+        old="    if names is not None and isinstance(image, (int, np.integer)) and 0 <= image < len(names):\n",
+        new="    if False:\n",
+        behaviour='a disagreement between images names the files, as given, not their positions in the list',
+        tests=['test/cli/test_cli_refine.py::test_images_of_two_cameras_are_not_adopted'],
+    ),
+    dict(
+        id='refine-camera-blas-threads-left-to-openblas',
+        file=f'{PKG}/core/estimation/refine.py',
+        old="@one_blas_thread()  # its solves are small: OpenBLAS's threads only wait for busy cores (problem.py)\n",
+        new="",
+        behaviour="a library caller's refine_camera runs OpenBLAS on one thread",
+        tests=['test/core/estimation/test_refine.py::test_a_library_callers_refine_camera_runs_openblas_in_one_thread'],
+    ),
 ]

@@ -114,7 +114,7 @@ def run(args):
     # the images are detected in worker processes, one per core (the same curves, in the same order)
     try:
         result = refine_from_images(spec, images, args.fov_tolerance, workers=os.cpu_count() or 1, regions=regions,
-                                    solution=solution,
+                                    solution=solution, image_names=names,
                                     progress=None if progress is None else
                                     (lambda report: progress(_refine_progress_text(report))))
     finally:

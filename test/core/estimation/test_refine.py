@@ -676,7 +676,7 @@ def test_refine_from_images_makes_curves_again_under_the_refined_camera(monkeypa
         curves_under.append((edges, camera, image_id))
         return []
 
-    def fit(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None):
+    def fit(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None, image_names=None):
         started_from.append(initial)
         return refine_module.Refinement(TRUTH, True, 'accepted', 1.0, 3.0, 0, 0, None, None, 0.0, 0.0,
                                         zero_shot_camera=zs)
@@ -713,7 +713,7 @@ def test_each_round_fits_the_curves_it_made_and_no_earlier_rounds(monkeypatch):
         return [made[-1]]
 
     def fit(spec, curves, images, width, height, tolerance, initial=None, solution=None, image_circle=None,
-            gradients=None):
+            gradients=None, image_names=None):
         fitted.append((list(curves), dict(gradients)))
         return refine_module.Refinement(TRUTH, True, 'accepted', 1.0, 3.0, 0, 0, None, None, 0.0, 0.0,
                                         zero_shot_camera=zs)
@@ -741,7 +741,7 @@ def scripted_rounds(monkeypatch, decisions):
     circles = []
 
     def fit(spec, curves, images, width, height, tolerance, initial=None, solution=None, image_circle=None,
-            gradients=None):
+            gradients=None, image_names=None):
         k = len(circles)
         circles.append(image_circle)
         camera = KannalaBrandtCamera(400.0 + k, 400.0 + k, W / 2, H / 2, W, H, [0, 0, 0, 0])
@@ -925,6 +925,37 @@ def test_straightness_residuals_remembered_are_those_computed():
     import pickle
     copy = pickle.loads(pickle.dumps(term))
     assert np.array_equal(copy.point_residuals(camera), whole, equal_nan=True)
+
+
+def test_a_library_callers_refine_camera_runs_openblas_in_one_thread(monkeypatch):
+    """refine_camera called directly (not through refine_from_frames) solves with one OpenBLAS
+    thread too, and gives the caller's count back."""
+    from zeroshot_calib_ros.core.estimation.problem import Problem, openblas_thread_controls
+    controls = openblas_thread_controls()
+    if not controls:
+        pytest.skip('no OpenBLAS in this process')
+    before = [get() for get, _ in controls]
+    seen = []
+
+    solve = Problem.solve
+
+    def recorded(self, *args, **kwargs):
+        seen.append([get() for get, _ in controls])
+        return solve(self, *args, **kwargs)
+    monkeypatch.setattr(Problem, 'solve', recorded)
+    curves = views(TRUTH, np.random.default_rng(7), 6, n_views=2)
+    try:
+        for _, put in controls:
+            put(2)
+        controls = [(get, put) for get, put in controls if get() == 2]  # single-threaded builds stay at 1
+        if not controls:
+            pytest.skip('no OpenBLAS here takes a thread count')
+        refine_camera(spec_of(TRUTH), curves)
+        assert seen and all(counts[:len(controls)] == [1] * len(controls) for counts in seen), seen
+        assert [get() for get, _ in controls] == [2] * len(controls)
+    finally:
+        for (_, put), count in zip(openblas_thread_controls(), before):
+            put(count)
 
 
 def test_the_fit_runs_openblas_in_one_thread_and_gives_the_threads_back():

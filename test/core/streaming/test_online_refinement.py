@@ -191,7 +191,8 @@ def test_after_a_refined_camera_only_a_clearly_better_fit_is_offered_and_then_it
     script = [(None, False), (2.0, True), (1.5, True), (1.39, True), (1.0, False), (1.2, True), (1.0, True)]
     starts, answers = [], iter(script)
 
-    def scripted(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None):
+    def scripted(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None,
+                 image_names=None):
         u, accepted = next(answers)
         starts.append(initial)
         camera = KannalaBrandtCamera(zs.fx + len(starts), zs.fy, zs.cx, zs.cy, 640, 360, zs.D)
@@ -249,7 +250,8 @@ def _scripted_worker(monkeypatch, script, **start):
     zs = zero_shot_camera(SPEC, 640, 360)
     answers, sizes = iter(script), []
 
-    def scripted(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None):
+    def scripted(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None,
+                 image_names=None):
         u, accepted = next(answers)
         sizes.append((width, height, initial))
         camera = KannalaBrandtCamera(zs.fx * width / 640 + len(sizes), zs.fy * width / 640, width / 2, height / 2,
@@ -356,7 +358,7 @@ def scripted_worker(monkeypatch, script, start=None, looked_with=None, spec=SPEC
     zs = zero_shot_camera(spec, 640, 360)
     answers, detected_with = iter(script), []
 
-    def fit(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None):
+    def fit(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None, image_names=None):
         u, accepted = next(answers)
         camera = KannalaBrandtCamera(zs.fx + len(detected_with), zs.fy, zs.cx, zs.cy, 640, 360, zs.D)
         return refine_module.Refinement(camera, accepted, 'accepted' if accepted else 'too few lines', u, 3.0,
@@ -547,7 +549,7 @@ def test_the_worker_leaves_out_the_vehicle_body_and_takes_the_image_circle_as_ev
         detected.extend(found)
         return found
 
-    def fit(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None):
+    def fit(spec, curves, width, height, tolerance, initial=None, solution=None, image_circle=None, image_names=None):
         fits.append((list(curves), image_circle))
         return refine_module.Refinement(zs, False, 'too few lines', None, 3.0, 0, 0, None, None, 0.0, 0.0,
                                         zero_shot_camera=zs)

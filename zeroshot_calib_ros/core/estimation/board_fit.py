@@ -87,7 +87,7 @@ from ..lens.models import KannalaBrandtCamera
 from ..zeroshot.spec import CameraSpec
 from .fit import ORDER_PENALTY, estimate_sigma, truncated_start
 from .parameters import KB_TERMS, KannalaBrandtLayout
-from .problem import Problem
+from .problem import Problem, one_blas_thread
 from .refine import MAX_FOV_SIGMAS
 from .terms import FOV_TOLERANCE_DEG, SHAPE_SIGMA, FovTerm, PrincipalPointPrior, ShapePrior
 from .uncertainty import (Uncertainty, displacement, pixel_grid, probability_other_is_better, problem_uncertainty,
@@ -317,6 +317,7 @@ def spec_contradiction(problem: Problem, x, fov: FovTerm, tolerance_deg: float, 
     return ratio, float(chi2_distribution.ppf(1.0 - CONTRADICTION_P, len(fov.keys)))
 
 
+@one_blas_thread()  # its pose solves are tiny: OpenBLAS's threads only wait (problem.py)
 def fit_board(corners: CornerSet, spec: CameraSpec, views: Optional[Sequence[int]] = None,
               fov_tolerance_deg: float = FOV_TOLERANCE_DEG, orders=range(KB_TERMS + 1),
               max_nfev: int = 60, shape_sigma: float = SHAPE_SIGMA,

@@ -304,9 +304,10 @@ def circle_term(spec: CameraSpec, circle, width: int, fov_tolerance_deg: float, 
                            width, circle_fov, fov_tolerance_deg, reference)
 
 
+@one_blas_thread()  # its solves are small: OpenBLAS's threads only wait for busy cores (problem.py)
 def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = None, height: Optional[int] = None,
                   fov_tolerance_deg: float = FOV_TOLERANCE_DEG, initial: Optional[KannalaBrandtCamera] = None,
-                  solution=None, image_circle=None) -> Refinement:
+                  solution=None, image_circle=None, image_names=None) -> Refinement:
     """Refine the zero-shot camera of ``spec`` with ``curves`` (module docstring).
 
     ``curves``: ``core.lines.detect.Curve`` objects (or (N, 2) arrays of raw pixels, counted as
@@ -317,7 +318,9 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     at this size and tolerance (a ``zero_shot.ZeroShotStart``: then nothing of the spec is computed
     again). ``image_circle``: the image circle
     measured in the images (``core.lines.image_region.ImageCircle``), evidence of the principal
-    point and, with the spec's circle FOV, of the scale (``circle_term``)."""
+    point and, with the spec's circle FOV, of the scale (``circle_term``). ``image_names``: what a
+    reason calls each image (a sequence indexed by the curves' image ids, e.g. the files' paths);
+    default their ids."""
     width = spec.width if width is None else int(width)
     height = spec.height if height is None else int(height)
     if abs(width * spec.height - height * spec.width) > 0.01 * spec.width * spec.height:
@@ -414,7 +417,7 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     disagreeing = _disagreeing_images(images, inliers)
     if disagreeing:
         return refuse('disagreement between images: most curves of image(s) '
-                      f'{", ".join(str(i) for i in disagreeing)} are not straight under the camera that '
+                      f'{", ".join(_image_label(image_names, i) for i in disagreeing)} are not straight under the camera that '
                       'straightens the others (another camera, or another lens setting?)')
     worst = max(result.fov_residuals_deg.items(), key=lambda kv: abs(kv[1]) / fov_sigmas[kv[0]])
     if abs(worst[1]) > MAX_FOV_SIGMAS * fov_sigmas[worst[0]]:
@@ -422,7 +425,7 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
         detail = (f'the camera that straightens the lines has {worst[0]} '
                   f'{given_fovs[worst[0]] + worst[1]:.1f} degrees{across} against the '
                   f"spec's {given_fovs[worst[0]]:g} (tolerance {fov_sigmas[worst[0]]:.3g} deg)")
-        split = _image_disagreement(fit, used_term, used_images, priors)
+        split = _image_disagreement(fit, used_term, used_images, priors, image_names)
         if split:
             return refuse(f'{split}; all images together: {detail}')
         # the lines fix the lens's shape but hardly its scale (the zoom): the FOV they ask for
@@ -438,7 +441,7 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
         return refuse(f'the refined camera has no uncertainty: {ref_u.reason}')
     if not after < before:
         detail = f'held-out lines are not explained better: {after:.3g} px RMS against zero-shot {before:.3g} px'
-        split = _image_disagreement(fit, used_term, used_images, priors)
+        split = _image_disagreement(fit, used_term, used_images, priors, image_names)
         if split:
             return refuse(f'{split}; all images together: {detail}')
         return refuse(detail)
@@ -561,7 +564,15 @@ def _fit_uncertainty(fit: LineFit, seen=None):
     return u, layout, x, J
 
 
-def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, priors) -> Optional[str]:
+def _image_label(names: Optional[Sequence], image) -> str:
+    """What a reason calls ``image`` (an id): its name when ``names`` has one, else the id."""
+    if names is not None and isinstance(image, (int, np.integer)) and 0 <= image < len(names):
+        return str(names[image])
+    return str(image)
+
+
+def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, priors,
+                        names: Optional[Sequence] = None) -> Optional[str]:
     """Why the fit fails when the images disagree (two cameras, two zoom settings); None when they
     agree, or when fewer than two images have ``MIN_IMAGE_LINES`` curves.
 
@@ -590,7 +601,7 @@ def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, prio
     if len(keys) < 2:
         return None
     layout = fit.problem.layout
-    names, xs, covs = [], [], []
+    keys_used, xs, covs = [], [], []
     for key in keys:
         mask = np.array([i == key for i in images])
         sub = term.subset(mask).with_sigma(fit.sigma_px)
@@ -599,7 +610,7 @@ def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, prio
         u = problem_uncertainty(problem, solution.x, systematic_px=systematic_floor_px(fit.sigma_px))
         if u.covariance is None or not np.all(np.isfinite(solution.x)):
             continue  # this image alone does not determine a camera: it cannot disagree
-        names.append(key)
+        keys_used.append(key)
         xs.append(np.asarray(solution.x, dtype=float))
         covs.append(u.covariance)
     if len(xs) < 2:
@@ -625,7 +636,8 @@ def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, prio
     others = scores[worst][1]
     sd = np.sqrt(np.diag(covs[worst]))
     return (f'disagreement between images: the cameras their lines ask for one by one differ by more than their '
-            f'uncertainties allow (chi^2 {q:.3g} for {dof} degrees of freedom, p = {p:.2g}); image {names[worst]} '
+            f'uncertainties allow (chi^2 {q:.3g} for {dof} degrees of freedom, p = {p:.2g}); image '
+            f'{_image_label(names, keys_used[worst])} '
             f'differs most: principal point ({xs[worst][1]:.1f}, {xs[worst][2]:.1f}) +- ({sd[1]:.2g}, {sd[2]:.2g}) px '
             f'against ({others[1]:.1f}, {others[2]:.1f}) from the others (images of different cameras or lens '
             'settings, or curves in some images that are not straight in the scene?)')
@@ -665,20 +677,23 @@ class RefineProgress:
 
 def refine_from_frames(spec: CameraSpec, curves: Sequence, images, width: int, height: int,
                        fov_tolerance_deg: float = FOV_TOLERANCE_DEG, initial: Optional[KannalaBrandtCamera] = None,
-                       solution=None, image_circle=None, gradients: Optional[dict] = None) -> Refinement:
+                       solution=None, image_circle=None, gradients: Optional[dict] = None,
+                       image_names=None) -> Refinement:
     """``refine_camera`` over the curves of several frames of one moving camera, what stays put
     across them (``core.lines.static_curves``: the vehicle's or robot's own body in view, lens
     dirt) left out of the fit and listed in ``Refinement.static_curves``. ``images``: the frames,
     indexed by the curves' ``image``. What ``refine_from_images`` and the node's refine worker
     both fit. ``solution``: as ``refine_camera``'s. ``gradients``: a dict kept across calls on
-    the same ``images`` (``static_curves``': their gradients computed once). The fit's BLAS calls run
+    the same ``images`` (``static_curves``': their gradients computed once); ``image_names``: as
+    ``refine_camera``'s. The fit's BLAS calls run
     in one thread (``problem.one_blas_thread``: the same numbers, without OpenBLAS's threads
     waiting for busy cores)."""
     from ..lines.static_curves import static_curves
     static = static_curves(curves, images, gradients)
     with one_blas_thread():
         result = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,
-                               fov_tolerance_deg, initial=initial, solution=solution, image_circle=image_circle)
+                               fov_tolerance_deg, initial=initial, solution=solution, image_circle=image_circle,
+                               image_names=image_names)
     result.static_curves = [c for c, s in zip(curves, static) if s]
     return result
 
@@ -686,7 +701,7 @@ def refine_from_frames(spec: CameraSpec, curves: Sequence, images, width: int, h
 def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: float = FOV_TOLERANCE_DEG,
                        rounds: int = 2, workers: int = 1, regions: Optional[Sequence] = None,
                        use_image_circle: bool = True, progress: Optional[Callable[[RefineProgress], None]] = None,
-                       solution=None, **detect_options) -> Refinement:
+                       solution=None, image_names=None, **detect_options) -> Refinement:
     """Detect curves in ``images`` (grey or BGR arrays, all one size) with the zero-shot camera,
     fit, make curves again of the same edge points under the refined camera (``find_edges`` once,
     ``curves_from_edges`` per round) and fit again (``rounds`` fits in all).
@@ -710,6 +725,7 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
 
     ``progress``: called with a ``RefineProgress`` after each image's detection and after each
     fit (in the calling thread, whatever ``workers``); what it does changes nothing here.
+    ``image_names``: what a reason calls each image (e.g. its file), in the order of ``images``.
 
     The spec's zero-shot result (``zero_shot.zero_shot_start``: the solution, its Kannala-Brandt
     camera at the images' size, its error bar) is made once, from ``solution`` when given (a
@@ -777,7 +793,8 @@ def refine_from_images(spec: CameraSpec, images: Sequence, fov_tolerance_deg: fl
             with jacobian_threads(workers):
                 attempt = refine_from_frames(spec, curves, images, width, height, fov_tolerance_deg,
                                              initial=camera if result is not None else None, solution=start,
-                                             image_circle=circle if use_image_circle else None, gradients=gradients)
+                                             image_circle=circle if use_image_circle else None, gradients=gradients,
+                                             image_names=image_names)
             attempt.image_circle, attempt.circle_measured_in = circle, measured_in
             if progress is not None:
                 progress(RefineProgress('fit', round_index + 1, total_rounds, len(images), len(images),
