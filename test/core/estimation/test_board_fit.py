@@ -146,32 +146,9 @@ def test_the_board_fit_runs_openblas_in_one_thread_and_gives_the_threads_back(mo
     """A board fit solves thousands of 6x6 systems: with OpenBLAS's threads waiting beside a second
     busy process it took 5x its time with Ubuntu 24.04's numpy (benchmarks/results/blas_threads.md).
     Every solve of the fit runs with one thread; the caller's count is back afterwards."""
-    from zeroshot_calib_ros.core.estimation.problem import Problem, openblas_thread_controls
-    controls = openblas_thread_controls()
-    if not controls:
-        pytest.skip('no OpenBLAS in this process')
-    before = [get() for get, _ in controls]
-    seen = []
-
-    solve = Problem.solve
-
-    def recorded(self, *args, **kwargs):
-        seen.append([get() for get, _ in controls])
-        return solve(self, *args, **kwargs)
-    monkeypatch.setattr(Problem, 'solve', recorded)
+    from openblas_threads import assert_solves_use_one_openblas_thread
     corners, _ = board_views(TRUTH, 2, seed=3)
-    try:
-        for _, put in controls:
-            put(2)
-        controls = [(get, put) for get, put in controls if get() == 2]  # single-threaded builds stay at 1
-        if not controls:
-            pytest.skip('no OpenBLAS here takes a thread count')
-        fit_board(corners, true_spec(), [0, 1], orders=(0, 1))
-        assert seen and all(counts[:len(controls)] == [1] * len(controls) for counts in seen), seen
-        assert [get() for get, _ in controls] == [2] * len(controls)
-    finally:
-        for (_, put), count in zip(openblas_thread_controls(), before):
-            put(count)
+    assert_solves_use_one_openblas_thread(monkeypatch, lambda: fit_board(corners, true_spec(), [0, 1], orders=(0, 1)))
 
 
 def bent_view(camera, sag, seed, noise=0.2):

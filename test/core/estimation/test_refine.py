@@ -930,32 +930,9 @@ def test_straightness_residuals_remembered_are_those_computed():
 def test_a_library_callers_refine_camera_runs_openblas_in_one_thread(monkeypatch):
     """refine_camera called directly (not through refine_from_frames) solves with one OpenBLAS
     thread too, and gives the caller's count back."""
-    from zeroshot_calib_ros.core.estimation.problem import Problem, openblas_thread_controls
-    controls = openblas_thread_controls()
-    if not controls:
-        pytest.skip('no OpenBLAS in this process')
-    before = [get() for get, _ in controls]
-    seen = []
-
-    solve = Problem.solve
-
-    def recorded(self, *args, **kwargs):
-        seen.append([get() for get, _ in controls])
-        return solve(self, *args, **kwargs)
-    monkeypatch.setattr(Problem, 'solve', recorded)
+    from openblas_threads import assert_solves_use_one_openblas_thread
     curves = views(TRUTH, np.random.default_rng(7), 6, n_views=2)
-    try:
-        for _, put in controls:
-            put(2)
-        controls = [(get, put) for get, put in controls if get() == 2]  # single-threaded builds stay at 1
-        if not controls:
-            pytest.skip('no OpenBLAS here takes a thread count')
-        refine_camera(spec_of(TRUTH), curves)
-        assert seen and all(counts[:len(controls)] == [1] * len(controls) for counts in seen), seen
-        assert [get() for get, _ in controls] == [2] * len(controls)
-    finally:
-        for (_, put), count in zip(openblas_thread_controls(), before):
-            put(count)
+    assert_solves_use_one_openblas_thread(monkeypatch, lambda: refine_camera(spec_of(TRUTH), curves))
 
 
 def test_the_fit_runs_openblas_in_one_thread_and_gives_the_threads_back():
