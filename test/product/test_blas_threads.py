@@ -19,12 +19,14 @@ REPO = Path(__file__).resolve().parents[2]
 FRONT_ENDS = {'command': 'zeroshot_calib_ros.cli', 'node': 'zeroshot_calib_ros.ros.entry_point'}
 
 
-def _threads(imports: str, blas_threads=None) -> int:
+def _threads(imports: str, blas_threads=None, omp_threads=None) -> int:
     """Threads of a fresh interpreter after ``imports``, numpy and one BLAS call."""
     env = {k: v for k, v in os.environ.items() if k not in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS')}
     env['PYTHONPATH'] = str(REPO) + os.pathsep + env.get('PYTHONPATH', '')
     if blas_threads is not None:
         env['OPENBLAS_NUM_THREADS'] = str(blas_threads)
+    if omp_threads is not None:  # OpenBLAS's fallback when OPENBLAS_NUM_THREADS is not set
+        env['OMP_NUM_THREADS'] = str(omp_threads)
     code = (f'{imports}\nimport os, numpy\nnumpy.linalg.solve(numpy.eye(200), numpy.ones(200))\n'
             "print(len(os.listdir('/proc/self/task')))")
     done = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True, timeout=120)
@@ -48,6 +50,8 @@ def numpy_threads_blas():
 def test_the_front_ends_run_blas_on_one_thread_unless_the_user_says_otherwise(front_end, numpy_threads_blas):
     imports = f'import {FRONT_ENDS[front_end]}'
     assert _threads(imports) == _threads(imports, 1) < _threads(imports, 2)
+    # OMP_NUM_THREADS, common in containers, is not the user asking for BLAS threads
+    assert _threads(imports, omp_threads=2) == _threads(imports, 1)
 
 
 def test_the_library_leaves_blas_threads_alone(numpy_threads_blas):

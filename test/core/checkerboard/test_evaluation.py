@@ -37,6 +37,29 @@ def test_rodrigues_is_opencvs():
     np.testing.assert_allclose(rodrigues(rvecs), expected, atol=1e-12)
 
 
+def test_poses_refine_past_corners_the_model_cannot_project():
+    """A model that cannot image some corners (NaN there, as the paper's model past 90 degrees):
+    the pose is refined on the others to the true one from a start 2 degrees and 2 cm off (a NaN
+    derivative of those corners never stalls the step)."""
+    from zeroshot_calib_ros.core.checkerboard.pose import refine_poses, transform
+    from zeroshot_calib_ros.core.lens.models import PinholeCamera
+
+    class BlindRight(PinholeCamera):
+        def project(self, points):
+            pixels = super().project(points)
+            return np.where((pixels[..., :1] > 500.0), np.nan, pixels)  # right part of the image
+    camera = BlindRight(300.0, 300.0, 400.0, 250.0, 800, 500)
+    grid = np.mgrid[0:8, 0:6].T.reshape(-1, 2) * 0.05
+    board = np.column_stack([grid - grid.mean(axis=0), np.zeros(len(grid))])
+    rvec, tvec = np.array([0.1, -0.2, 0.05]), np.array([0.05, 0.0, 0.5])
+    seen = PinholeCamera.project(camera, transform(rvec, tvec, board))
+    assert 0 < np.sum(seen[:, 0] > 500.0) < len(board) // 2  # the premise: some corners unprojectable
+    start_r, start_t = rvec + np.radians(2.0) * np.array([1.0, 0.0, 0.0]), tvec + 0.02
+    r, t, _ = refine_poses(camera, board, seen[None], start_r[None], start_t[None])
+    np.testing.assert_allclose(r[0], rvec, atol=1e-6)
+    np.testing.assert_allclose(t[0], tvec, atol=1e-6)
+
+
 @pytest.mark.parametrize('camera', [
     TRUE,
     KannalaBrandtCamera(290.0, 289.4, 400.0, 252.0, 800, 500, [-0.03, -0.02, 0.002, 0.001]),

@@ -424,9 +424,33 @@ def test_images_of_two_cameras_are_refused_as_disagreeing():
     curves = views(TRUTH, rng, 10, n_views=2)
     for c in views(other, rng, 10, n_views=2):
         curves.append(Curve(c.points, c.image + 2, c.straight))
-    result = refine_camera(spec_of(TRUTH), curves)
+    names = ['true_a.png', 'true_b.png', 'other_a.png', 'other_b.png']
+    result = refine_camera(spec_of(TRUTH), curves, image_names=names)
     assert not result.accepted and result.reason.startswith('disagreement between images')
     assert np.allclose(result.camera.K, result.zero_shot_camera.K)
+    # the reason names an image by the name given for it, never by its position
+    assert any(name in result.reason for name in names), result.reason
+    assert not re.search(r'image\(?s?\)? \d', result.reason), result.reason
+
+
+def test_an_image_whose_curves_are_mostly_not_straight_is_named():
+    """Image 0's curves are mostly arcs while image 1's are lines: refused as a disagreement
+    between images that names image 0 by its file (the first image: position 0 is a name too)."""
+    rng = np.random.default_rng(5)
+    curves = [Curve(c.points, 1, c.straight) for c in views(TRUTH, rng, 16, n_views=1, arcs_per_view=0)]
+    curves += [Curve(c, 0, straight=False) for c in arcs(rng, 8)]
+    curves += [Curve(c, 0) for c in line_curves(TRUTH, rng, 2)]
+    result = refine_camera(spec_of(TRUTH), curves, image_names=['arcs.png', 'lines.png'])
+    assert not result.accepted
+    assert result.reason.startswith('disagreement between images: most curves of image(s) arcs.png are not '
+                                    'straight'), result.reason
+
+
+def test_an_image_is_labelled_by_its_name_or_else_its_id():
+    from zeroshot_calib_ros.core.estimation.refine import _image_label
+    names = ['a.png', 'b.png']
+    assert [_image_label(names, i) for i in (0, 1, np.int64(1))] == ['a.png', 'b.png', 'b.png']
+    assert _image_label(names, 2) == '2' and _image_label(None, 0) == '0' and _image_label(names, 'f3') == 'f3'
 
 
 def test_images_without_lines_keep_zero_shot():
