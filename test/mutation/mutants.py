@@ -2871,4 +2871,12 @@ MUTANTS = [
         behaviour="one BLAS thread even where OMP_NUM_THREADS is set (containers): only OPENBLAS_NUM_THREADS is the user's say",
         tests=['test/product/test_blas_threads.py::test_the_front_ends_run_blas_on_one_thread_unless_the_user_says_otherwise'],
     ),
+    dict(
+        id='pose-jacobian-one-step-not-two',
+        file=f'{PKG}/core/checkerboard/pose.py',
+        old="        d = (both[0] - both[1]) / (2 * h.T[:, :, None])\n",
+        new="        d = (both[0] - both[1]) / (h.T[:, :, None])\n",
+        behaviour='board poses converge in a few steps (a Jacobian off by a factor halves every step)',
+        tests=['test/core/checkerboard/test_evaluation.py::test_poses_converge_in_a_few_steps_as_with_exact_derivatives'],
+    ),
 ]

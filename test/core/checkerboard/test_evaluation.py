@@ -60,6 +60,21 @@ def test_poses_refine_past_corners_the_model_cannot_project():
     np.testing.assert_allclose(t[0], tvec, atol=1e-6)
 
 
+def test_poses_converge_in_a_few_steps_as_with_exact_derivatives():
+    """Near the answer, Levenberg-Marquardt with the right Jacobian converges in a few steps (a
+    derivative off by a factor would halve every step and still need many): five iterations
+    from 0.5 degree and 5 mm off reach the true pose of a noise-free board to 1e-7."""
+    from zeroshot_calib_ros.core.checkerboard.pose import refine_poses, transform
+    camera = KannalaBrandtCamera(290.0, 289.4, 400.0, 252.0, 800, 500, [-0.03, -0.02, 0.002, 0.001])
+    grid = np.mgrid[0:8, 0:6].T.reshape(-1, 2) * 0.05
+    board = np.column_stack([grid - grid.mean(axis=0), np.zeros(len(grid))])
+    rvecs, tvecs = np.array([[0.1, -0.2, 0.05], [-0.3, 0.1, 0.2]]), np.array([[0.05, 0.0, 0.5], [-0.1, 0.05, 0.4]])
+    seen = np.stack([camera.project(transform(r, t, board)) for r, t in zip(rvecs, tvecs)])
+    r, t, _ = refine_poses(camera, board, seen, rvecs + np.radians(0.5), tvecs + 0.005, max_iterations=5)
+    np.testing.assert_allclose(r, rvecs, atol=1e-7)
+    np.testing.assert_allclose(t, tvecs, atol=1e-7)
+
+
 @pytest.mark.parametrize('camera', [
     TRUE,
     KannalaBrandtCamera(290.0, 289.4, 400.0, 252.0, 800, 500, [-0.03, -0.02, 0.002, 0.001]),
