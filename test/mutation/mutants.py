@@ -2850,8 +2850,8 @@ MUTANTS = [
     dict(
         id='refine-mostly-bent-image-by-position',
         file=f'{PKG}/core/estimation/refine.py',
-        old="f'{\", \".join(_image_label(image_names, i) for i in disagreeing)} are not straight",
-        new="f'{\", \".join(str(i) for i in disagreeing)} are not straight",
+        old="        named = ', '.join(_image_label(image_names, i) for i in disagreeing)\n",
+        new="        named = ', '.join(str(i) for i in disagreeing)\n",
         behaviour='an image whose curves are mostly not straight is named by its file',
         tests=['test/core/estimation/test_refine.py::test_an_image_whose_curves_are_mostly_not_straight_is_named'],
     ),

@@ -416,9 +416,9 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
                       f'of the image and reach {100 * result.reach:.0f} % of the way to the corners')
     disagreeing = _disagreeing_images(images, inliers)
     if disagreeing:
-        return refuse('disagreement between images: most curves of image(s) '
-                      f'{", ".join(_image_label(image_names, i) for i in disagreeing)} are not straight under the camera that '
-                      'straightens the others (another camera, or another lens setting?)')
+        named = ', '.join(_image_label(image_names, i) for i in disagreeing)
+        return refuse(f'disagreement between images: most curves of image(s) {named} are not straight under the '
+                      'camera that straightens the others (another camera, or another lens setting?)')
     worst = max(result.fov_residuals_deg.items(), key=lambda kv: abs(kv[1]) / fov_sigmas[kv[0]])
     if abs(worst[1]) > MAX_FOV_SIGMAS * fov_sigmas[worst[0]]:
         across = ' across the image circle measured in the images' if worst[0] == 'circle' and states_fov else ''
@@ -685,15 +685,13 @@ def refine_from_frames(spec: CameraSpec, curves: Sequence, images, width: int, h
     indexed by the curves' ``image``. What ``refine_from_images`` and the node's refine worker
     both fit. ``solution``: as ``refine_camera``'s. ``gradients``: a dict kept across calls on
     the same ``images`` (``static_curves``': their gradients computed once); ``image_names``: as
-    ``refine_camera``'s. The fit's BLAS calls run
-    in one thread (``problem.one_blas_thread``: the same numbers, without OpenBLAS's threads
-    waiting for busy cores)."""
+    ``refine_camera``'s, whose BLAS calls run in one thread (``problem.one_blas_thread``: the same
+    numbers, without OpenBLAS's threads waiting for busy cores)."""
     from ..lines.static_curves import static_curves
     static = static_curves(curves, images, gradients)
-    with one_blas_thread():
-        result = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,
-                               fov_tolerance_deg, initial=initial, solution=solution, image_circle=image_circle,
-                               image_names=image_names)
+    result = refine_camera(spec, [c for c, s in zip(curves, static) if not s], width, height,
+                           fov_tolerance_deg, initial=initial, solution=solution, image_circle=image_circle,
+                           image_names=image_names)
     result.static_curves = [c for c, s in zip(curves, static) if s]
     return result
 
