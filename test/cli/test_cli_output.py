@@ -372,3 +372,33 @@ def test_the_progress_line_fits_the_terminal(monkeypatch):
     line('x' * 100)
     line('short')
     assert screen.getvalue() == '\r' + 'zeroshot-calib: refine ' + 'x' * 16 + '\r' + 'zeroshot-calib: refine short'.ljust(39)
+
+
+def test_a_terminal_of_unknown_width_takes_columns_or_80(monkeypatch):
+    """A pty whose size was never set says 0 columns (`script`, some CI runners): the line is cut
+    to COLUMNS, else 80, not to nothing."""
+    import pty
+    leader, follower = pty.openpty()
+    assert os.get_terminal_size(follower).columns == 0
+    with os.fdopen(follower, 'w') as terminal:
+        monkeypatch.setenv('COLUMNS', '50')
+        assert cli_output._columns(terminal) == 50
+        monkeypatch.delenv('COLUMNS')
+        monkeypatch.setattr(cli_output.shutil, 'get_terminal_size', lambda: os.terminal_size((80, 24)))
+        assert cli_output._columns(terminal) == 80
+    os.close(leader)
+
+
+def test_the_record_of_a_refined_camera_keeps_the_image_circle_of_the_spec():
+    """A camera refined from a circle spec (`refine --circle-fov F`, the diameter measured) keeps
+    the circle in its record's spec and on the text's camera line, as the zero-shot record does."""
+    from types import SimpleNamespace
+    spec = CameraSpec(748, 480, circle_diameter=564.5, circle_fov=178.7)
+    args = SimpleNamespace(balance=0.0, fov_scale=1.0, camera_name='camera')
+    from zeroshot_calib_ros.core.estimation.zero_shot import zero_shot_camera
+    camera = zero_shot_camera(spec, 748, 480)
+    summary, _ = cli_output.kannala_brandt_record(camera, spec, 'refined (Kannala-Brandt)', args)
+    assert summary['spec'] == {'circle_diameter': 564.5, 'circle_fov': 178.7}
+    from zeroshot_calib_ros.core.ros_formats.calibration_file import summary_text
+    first = summary_text(summary).splitlines()[0]
+    assert first == 'camera    748 x 480 px, circle_diameter 564.5 px, circle_fov 178.7 deg', first

@@ -100,6 +100,18 @@ def test_refine_recovers_the_true_camera_and_writes_it(views, capsys, tmp_path):
     assert green.sum() > 300 * (w / 640) ** 2
 
 
+def test_refine_text_output_names_every_file_it_wrote(capsys, tmp_path):
+    """Each file written gets its `wrote` line, refined or not (the picture to look at first included)."""
+    path = tmp_path / 'black.png'
+    cv2.imwrite(str(path), np.zeros((360, 640), np.uint8))
+    files = [tmp_path / name for name in ('camera.yaml', 'debug.png', 'report.png')]
+    status, out, err = run(capsys, str(path), *SPEC_FLAGS, '--yaml', str(files[0]), '--debug-image', str(files[1]),
+                           '--report', str(files[2]))
+    assert status == NOT_REFINED, err
+    for written in files:
+        assert written.is_file() and f'wrote {written}' in out.splitlines(), out
+
+
 def test_refine_text_output_says_what_it_decided(capsys, tmp_path):
     path = tmp_path / 'black.png'
     cv2.imwrite(str(path), np.zeros((360, 640), np.uint8))
@@ -292,6 +304,17 @@ def test_circle_fov_without_a_circle_in_the_images_is_one_error_line(views, caps
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith('zeroshot-calib: error: ') and '--circle-diameter' in lines[0]
     assert 'circle' in lines[0] and 'found' in lines[0]
+
+
+@pytest.mark.parametrize('value', ['0', '-5', '400'])
+def test_an_invalid_circle_fov_is_named_before_any_circle_is_looked_for(views, capsys, value):
+    """A circle FOV out of range is the field the error names, whether or not the images show a
+    circle (not "needs the image circle's diameter")."""
+    status, out, err = run(capsys, views[0], '--circle-fov', value)
+    assert status == 2 and out == ''
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith('zeroshot-calib: error: circle_fov = '), lines
+    assert 'allowed: degrees, greater than 0 and less than' in lines[0], lines
 
 
 def test_refine_reports_progress_to_its_callback_and_the_result_is_the_same(views):

@@ -2879,4 +2879,28 @@ MUTANTS = [
         behaviour='board poses converge in a few steps (a Jacobian off by a factor halves every step)',
         tests=['test/core/checkerboard/test_evaluation.py::test_poses_converge_in_a_few_steps_as_with_exact_derivatives'],
     ),
+    dict(
+        id='refine-disagreement-names-by-all-images',
+        file=f'{PKG}/core/estimation/refine.py',
+        old="            f'{_image_label(names, keys_used[worst])} '\n",
+        new="            f'{_image_label(names, keys[worst])} '\n",
+        behaviour='the image named as differing most is the one that does, past an image that determines no camera alone',
+        tests=['test/core/estimation/test_refine.py::test_the_image_that_differs_is_named_past_one_that_determines_no_camera_alone'],
+    ),
+    dict(
+        id='refine-image-straightened-worse-unchecked',
+        file=f'{PKG}/core/estimation/refine.py',
+        old="    if not after > MAX_IMAGE_WORSE * before:\n        return None\n",
+        new="    if not after > MAX_IMAGE_WORSE * before or True:\n        return None\n",
+        behaviour='images of two cameras are not fitted by a camera between theirs that is worse than zero-shot for one',
+        tests=['test/core/estimation/test_refine.py::test_images_of_two_cameras_never_give_a_camera_worse_than_zero_shot_for_either'],
+    ),
+    dict(
+        id='refine-image-straightened-worse-best-image',
+        file=f'{PKG}/core/estimation/refine.py',
+        old="    key = max(keys, key=lambda k: ratios[k][0] / ratios[k][1])\n",
+        new="    key = min(keys, key=lambda k: ratios[k][0] / ratios[k][1])\n",
+        behaviour='the image judged is the one the fitted camera straightens worst against zero-shot',
+        tests=['test/core/estimation/test_refine.py::test_images_of_two_cameras_never_give_a_camera_worse_than_zero_shot_for_either'],
+    ),
 ]

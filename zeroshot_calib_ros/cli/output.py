@@ -14,7 +14,7 @@ import numpy as np
 
 from ..core.file_input import InputFileError, read_image
 from ..core.lens.fitting import DISTORTION_FITS, FIT_WARNING_PX
-from ..core.ros_formats.calibration_file import CalibrationFileError, CameraCalibration, stand_in_note
+from ..core.ros_formats.calibration_file import CalibrationFileError, CameraCalibration, spec_record, stand_in_note
 from ..core.ros_formats.rectify import new_camera_matrix
 from .arguments import EXIT_NOT_ADOPTED, CliError
 
@@ -101,7 +101,7 @@ def kannala_brandt_record(camera, spec, model, args, distortion_model='equidista
                                     camera.D if D is None else D, np.eye(3), P, args.camera_name)
     fovs = camera.fields_of_view()
     summary = {
-        'width': spec.width, 'height': spec.height, 'spec': dict(spec.given()),
+        'width': spec.width, 'height': spec.height, 'spec': spec_record(spec),
         'model': model, 'omega': None, 'f': float(camera.K[0, 0]),
         'cx': float(camera.cx), 'cy': float(camera.cy), 'K': calibration.K.tolist(),
         'distortion_model': distortion_model, 'D': calibration.D.tolist(), 'fit_error_px': fit_error,
@@ -217,9 +217,11 @@ def _columns(stream) -> int:
     """The width of the terminal ``stream`` writes to (its own, else the one ``COLUMNS`` or stdout
     say, else 80)."""
     try:
-        return os.get_terminal_size(stream.fileno()).columns
+        columns = os.get_terminal_size(stream.fileno()).columns
     except (AttributeError, ValueError, OSError):  # no file number (a test's stream), or no terminal
-        return shutil.get_terminal_size().columns
+        columns = 0
+    # a terminal whose size was never set (a pty of `script`, some CI runners) says 0 columns
+    return columns if columns > 0 else shutil.get_terminal_size().columns
 
 
 class ProgressLine:

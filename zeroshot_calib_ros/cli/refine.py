@@ -14,6 +14,7 @@ from ..core.lens.fitting import DISTORTION_FITS
 from ..core.ros_formats.calibration_file import CameraCalibration, json_safe, solution_summary, summary_text
 from ..core.ros_formats.rectify import new_camera_matrix, principal_point_camera_matrix
 from ..core.zeroshot.presets import spec_with_preset
+from ..core.zeroshot.spec import check_fov
 from ..core.zeroshot.solver import solve_zero_shot
 from .arguments import (EXIT_NOT_ADOPTED, EXIT_STATUSES, IMAGE_BUDGET, REPORT_HELP, CliError, add_circle_arguments,
                         add_fov_tolerance_argument, add_progress_argument, number)
@@ -63,6 +64,7 @@ def run(args):
     from ..core.lines.image_region import combine_circles, find_image_region
     if args.debug_image:
         check_output_image(args.debug_image, '--debug-image')
+    check_fov('circle_fov', args.circle_fov)  # named before the images are read for its diameter
     images, names, seen = [], [], {}
     for path in args.images:
         key = os.path.realpath(path)
@@ -176,6 +178,8 @@ def run(args):
         print(f"refined   {'yes' if result.accepted else 'no'}: {result.reason}")
         if args.yaml:
             print(f'wrote {args.yaml}')
+        if canvas is not None:
+            print(f'wrote {args.debug_image}')
         if args.report:
             print(f'wrote {args.report}')
     print_warnings(warnings)

@@ -172,8 +172,11 @@ def test_circle_form_validation():
         solve_zero_shot(CameraSpec(W, H, circle_diameter=1080, circle_fov=190), 'equidistant')
     assert err.value.field == 'projection'
     # A larger radius must see a larger angle.
-    with pytest.raises(SpecError, match='wider angle'):
+    with pytest.raises(SpecError, match='wider angle') as err:
         solve_zero_shot(CameraSpec(W, H, hfov=200, circle_diameter=1080, circle_fov=210))
+    # either may be the typo: the message names the other field by its own name and what it would have to be
+    assert err.value.field == 'hfov'
+    assert err.value.allowed == 'more than circle_fov = 210 degrees, or circle_fov less than 200'
     # Backward compatible: positional and keyword use of the old fields is unchanged.
     assert CameraSpec(W, H, 118, 69) == CameraSpec(width=W, height=H, hfov=118, vfov=69)
 

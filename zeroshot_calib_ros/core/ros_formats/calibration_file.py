@@ -998,16 +998,22 @@ def json_safe(value):
     return value
 
 
+def spec_record(spec) -> dict:
+    """What the spec sheet gave, as a record's ``spec``: the FOVs in degrees and the image circle
+    (``circle_diameter`` px, ``circle_fov`` degrees) when given."""
+    record = dict(spec.given())
+    if getattr(spec, 'circle_diameter', None) is not None:
+        record.update(circle_diameter=spec.circle_diameter, circle_fov=spec.circle_fov)
+    return record
+
+
 def solution_summary(solution: ZeroShotSolution, calibration: CameraCalibration, fit) -> dict:
     """The record of a solve (the CLI's ``--json``, the node's start-up log). Strict JSON: a
     predicted FOV whose edge pixels see no ray (outside a fisheye's image circle) is None."""
     fovs = solution.predicted_fovs()
-    spec = dict(solution.spec.given())
-    if getattr(solution.spec, 'circle_diameter', None) is not None:
-        spec.update(circle_diameter=solution.spec.circle_diameter, circle_fov=solution.spec.circle_fov)
     return json_safe({
         'width': solution.spec.width, 'height': solution.spec.height,
-        'spec': spec,
+        'spec': spec_record(solution.spec),
         'model': solution.projection.name, 'omega': solution.omega, 'f': solution.f,
         'cx': solution.camera.cx, 'cy': solution.camera.cy,
         'K': calibration.K.tolist(),
@@ -1029,7 +1035,7 @@ def summary_text(summary: dict) -> str:
     K = summary['K']
     note = stand_in_note(summary['distortion_model'], summary['D'])
     lines = [
-        f"camera    {summary['width']} x {summary['height']} px, {spec}",
+        f"camera    {summary['width']} x {summary['height']} px" + (f', {spec}' if spec else ''),
         f"model     {summary['model']}" + (
             '  (no barrel-distortion root: w* = 0, mean perspective focal)'
             if not summary['root_found'] and summary['omega'] == 0 and len(summary['spec']) > 1 else ''),

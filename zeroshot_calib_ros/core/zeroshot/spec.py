@@ -61,7 +61,8 @@ def _check_side(field: str, value) -> int:
     return int(value)
 
 
-def _check_fov(field: str, value) -> Optional[float]:
+def check_fov(field: str, value) -> Optional[float]:
+    """``value`` as degrees (None: not given), or SpecError naming ``field`` and the allowed range."""
     if value is None:
         return None
     allowed = f'degrees, greater than 0 and less than {MAX_FOV_DEG:g}, or not given'
@@ -132,9 +133,9 @@ class CameraSpec:
         object.__setattr__(self, 'width', _check_side('width', self.width))
         object.__setattr__(self, 'height', _check_side('height', self.height))
         for name in ('hfov', 'vfov', 'dfov'):
-            object.__setattr__(self, name, _check_fov(name, getattr(self, name)))
+            object.__setattr__(self, name, check_fov(name, getattr(self, name)))
         object.__setattr__(self, 'circle_diameter', _check_circle_diameter(self.circle_diameter))
-        object.__setattr__(self, 'circle_fov', _check_fov('circle_fov', self.circle_fov))
+        object.__setattr__(self, 'circle_fov', check_fov('circle_fov', self.circle_fov))
         if (self.circle_diameter is None) != (self.circle_fov is None):
             missing, given = (('circle_fov', 'circle_diameter') if self.circle_fov is None
                               else ('circle_diameter', 'circle_fov'))

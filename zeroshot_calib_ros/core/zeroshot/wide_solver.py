@@ -82,18 +82,25 @@ def needs_wide_model(spec: CameraSpec) -> bool:
     return getattr(spec, 'circle_diameter', None) is not None or any(v >= 180.0 for v in spec.given().values())
 
 
+def _field(constraint: Constraint) -> str:
+    return 'circle_fov' if constraint.name == 'circle' else constraint.name
+
+
 def _check_monotonic(constraints: List[Constraint]):
+    # either FOV of a pair out of order may be the typo: the error names the outer one and says
+    # what the inner one would have to be
     ordered = sorted(constraints, key=lambda c: c.radius)
     for inner, outer in zip(ordered, ordered[1:]):
         if outer.radius > inner.radius and outer.fov <= inner.fov:
-            raise SpecError(outer.name if outer.name != 'circle' else 'circle_fov', outer.fov,
-                            f'more than {inner.name} = {inner.fov:g} degrees',
+            raise SpecError(_field(outer), outer.fov,
+                            f'more than {_field(inner)} = {inner.fov:g} degrees, or {_field(inner)} less than '
+                            f'{outer.fov:g}',
                             f'{outer.name} spans {outer.radius:g} px from the centre, more than '
                             f'{inner.name} ({inner.radius:g} px), so a radially symmetric lens sees '
                             'a wider angle across it')
         if outer.radius == inner.radius and outer.fov != inner.fov:
-            raise SpecError(outer.name if outer.name != 'circle' else 'circle_fov', outer.fov,
-                            f'equal to {inner.name} = {inner.fov:g} degrees',
+            raise SpecError(_field(outer), outer.fov,
+                            f'equal to {_field(inner)} = {inner.fov:g} degrees',
                             f'{outer.name} and {inner.name} span the same {inner.radius:g} px')
 
 
