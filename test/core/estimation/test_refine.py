@@ -431,6 +431,20 @@ def test_images_of_two_cameras_are_refused_as_disagreeing():
     # the reason names an image by the name given for it, never by its position
     assert any(name in result.reason for name in names), result.reason
     assert not re.search(r'image\(?s?\)? \d', result.reason), result.reason
+    # what differs is named: here the principal point, quoted against the others'
+    assert 'differs most, in its principal point (' in result.reason, result.reason
+
+
+def test_an_image_whose_lines_ask_for_another_lens_shape_is_said_so():
+    """Two images of the true lens and two of a lens of the same centre and spec but another
+    distortion: what the reason names is the lens shape, not a principal point that agrees."""
+    rng = np.random.default_rng(11)
+    other = KannalaBrandtCamera(430.0, 430.0, TRUTH.cx, TRUTH.cy, W, H, [0.12, -0.03, 0.003, -0.0004])
+    curves = views(TRUTH, rng, 10, n_views=2)
+    curves += [Curve(c.points, c.image + 2, c.straight) for c in views(other, rng, 10, n_views=2)]
+    result = refine_camera(spec_of(TRUTH), curves, image_names=['a1.png', 'a2.png', 'b1.png', 'b2.png'])
+    assert not result.accepted
+    assert 'differs most, in the lens shape (distortion) its lines ask for' in result.reason, result.reason
 
 
 @pytest.mark.parametrize('seed', range(100, 108))

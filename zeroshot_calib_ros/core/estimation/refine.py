@@ -683,12 +683,31 @@ def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, prio
     worst = max(range(len(xs)), key=lambda g: scores[g][0])
     others = scores[worst][1]
     sd = np.sqrt(np.diag(covs[worst]))
+    # the part of the camera that differs most (its chi^2 alone, as a p-value): a principal point
+    # within its error bar is no reason to quote it, and the parts may differ only together
+    d = xs[worst] - others
+    spread = covs[worst] + np.linalg.inv(total - weights[worst])
+    parts = {'principal point': [layout.names.index('cx'), layout.names.index('cy')],
+             'focal length': [layout.names.index('f')],
+             'lens shape': [i for i, n in enumerate(layout.names) if n not in ('f', 'cx', 'cy')]}
+    chances = {part: float(chdtrc(len(i), d[i] @ np.linalg.solve(spread[np.ix_(i, i)], d[i])))
+               for part, i in parts.items() if i}
+    part = min(chances, key=chances.get)
+    if chances[part] >= DISAGREEMENT_P:
+        detail = ('its camera as a whole (no one of its principal point, focal length and lens shape differs from '
+                  'the others\' alone)')
+    elif part == 'principal point':
+        detail = (f'its principal point ({xs[worst][1]:.1f}, {xs[worst][2]:.1f}) +- ({sd[1]:.2g}, {sd[2]:.2g}) px '
+                  f'against ({others[1]:.1f}, {others[2]:.1f}) from the others')
+    elif part == 'focal length':
+        detail = f'its focal length {xs[worst][0]:.1f} +- {sd[0]:.2g} px against {others[0]:.1f} from the others'
+    else:
+        detail = "the lens shape (distortion) its lines ask for"
     return (f'disagreement between images: the cameras their lines ask for one by one differ by more than their '
             f'uncertainties allow (chi^2 {q:.3g} for {dof} degrees of freedom, p = {p:.2g}); image '
-            f'{_image_label(names, keys_used[worst])} '
-            f'differs most: principal point ({xs[worst][1]:.1f}, {xs[worst][2]:.1f}) +- ({sd[1]:.2g}, {sd[2]:.2g}) px '
-            f'against ({others[1]:.1f}, {others[2]:.1f}) from the others (images of different cameras or lens '
-            'settings, or curves in some images that are not straight in the scene?)')
+            f'{_image_label(names, keys_used[worst])} differs most, in {detail} '
+            '(images of different cameras or lens settings, or curves in some images that are not straight in the '
+            'scene?)')
 
 
 def _held_out(fit: LineFit, term: StraightnessTerm, held: np.ndarray, priors) -> tuple:
