@@ -299,6 +299,8 @@ def test_rectify_missing_or_unreadable_input(tmp_path, capsys):
         status, out, err = run_main(['rectify', str(path), '-o', str(tmp_path / 'o.png'), '--hfov', '90'],
                                     capsys)
         one_line_error(status, err, 'cannot read image')
+        if path == garbage:  # what it would have to be
+            assert 'allowed: an image file (PNG, JPEG' in ''.join(err), err
     status, out, err = run_main(['rectify', str(garbage), '-o', str(tmp_path / 'no' / 'dir' / 'o.png'),
                                  '--hfov', '90'], capsys)
     one_line_error(status, err, 'directory')

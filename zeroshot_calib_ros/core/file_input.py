@@ -209,7 +209,8 @@ def read_image(path, flags: int = -1, finite: bool = False):
     except cv2.error as exc:
         raise InputFileError(f'cannot read image {path}: OpenCV: {" ".join(str(exc).split())}') from None
     if image is None or image.size == 0:
-        raise InputFileError(f'cannot read image {path}: not an image file OpenCV can decode')
+        raise InputFileError(f'cannot read image {path}: not an image file OpenCV can decode: allowed: an image file '
+                             '(PNG, JPEG, TIFF, BMP, PGM/PPM, WebP, ...)')
     if messages:
         raise InputFileError(f'cannot read image {path}: the file is corrupt ({messages[:120]}): allowed: an '
                              'undamaged image file')
