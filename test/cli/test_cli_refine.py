@@ -110,6 +110,12 @@ def test_refine_text_output_names_every_file_it_wrote(capsys, tmp_path):
     assert status == NOT_REFINED, err
     for written in files:
         assert written.is_file() and f'wrote {written}' in out.splitlines(), out
+    # each flag alone: its own line, and no other
+    for flag, written in zip(('--yaml', '--debug-image', '--report'), files):
+        written.unlink()
+        status, out, err = run(capsys, str(path), *SPEC_FLAGS, flag, str(written))
+        assert status == NOT_REFINED, err
+        assert [line for line in out.splitlines() if line.startswith('wrote')] == [f'wrote {written}'], out
 
 
 def test_refine_text_output_says_what_it_decided(capsys, tmp_path):

@@ -469,7 +469,52 @@ def test_images_of_two_cameras_never_give_a_camera_worse_than_zero_shot_for_eith
         assert returned <= zero_shot + margin, result.reason
     if not result.accepted:
         assert result.reason.startswith('disagreement between images'), result.reason
+        assert re.search(r'image [ab][12]\.png ', result.reason), result.reason  # named by its file
         assert np.allclose(result.camera.K, result.zero_shot_camera.K)
+
+
+def _shifted_to_ratio(term, images, image, ratio):
+    """TRUTH with its principal point moved right until it straightens ``image``'s curves of
+    ``term`` ``ratio`` times worse (RMS) than TRUTH does."""
+    mask = np.array([i == image for i in images])
+    sub = term.subset(mask)
+    base = sub.rms(TRUTH)
+    lo, hi = 0.0, 60.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        camera = KannalaBrandtCamera(TRUTH.fx, TRUTH.fy, TRUTH.cx + mid, TRUTH.cy, W, H, TRUTH.D)
+        lo, hi = (mid, hi) if sub.rms(camera) < ratio * base else (lo, mid)
+    return KannalaBrandtCamera(TRUTH.fx, TRUTH.fy, TRUTH.cx + hi, TRUTH.cy, W, H, TRUTH.D)
+
+
+@pytest.mark.parametrize('ratio, per_image, refused', [
+    (1.2, (10, 10), True),      # past MAX_IMAGE_WORSE (1.1): images of two cameras
+    (1.05, (10, 10), False),    # within it: one camera's images, straightened alike to a few %
+    (1.2, (10, 5), True),       # an image with MIN_IMAGE_LINES curves is judged
+    (1.2, (10, 4), False),      # one with fewer is not (too few to say)
+    (1.2, (10,), False),        # nor one image alone (the held-out test judges it)
+])
+def test_an_image_straightened_worse_than_by_zero_shot_refuses_the_camera(ratio, per_image, refused):
+    """``_image_straightened_worse``: the camera fitted to all the images is refused when it
+    straightens one image's lines more than 1.1 times worse (RMS) than zero-shot does, among at
+    least two images of at least 5 curves each, and the reason names the worst image's file."""
+    from zeroshot_calib_ros.core.estimation.refine import _image_straightened_worse
+    rng = np.random.default_rng(3)
+    points, images = [], []
+    for image, count in enumerate(per_image):
+        for c in line_curves(TRUTH, rng, count):
+            points.append(c)
+            images.append(image)
+    term = StraightnessTerm(points, sigma=0.3)
+    last = len(per_image) - 1
+    refined = _shifted_to_ratio(term, images, last, ratio)
+    names = ['first.png', 'second.png']
+    reason = _image_straightened_worse(term, images, refined, TRUTH, names)
+    if refused:
+        assert reason is not None and reason.startswith('disagreement between images'), reason
+        assert re.search(r'image (first|second)\.png worse than zero-shot does', reason), reason  # by its file
+    else:
+        assert reason is None, reason
 
 
 def test_the_image_that_differs_is_named_past_one_that_determines_no_camera_alone(monkeypatch):
