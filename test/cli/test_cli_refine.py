@@ -304,6 +304,24 @@ def test_a_given_circle_diameter_that_disagrees_with_the_images_is_warned_about(
     assert len(warnings) == 1 and warnings[0].startswith('zeroshot-calib: warning: ') and 'differs' in warnings[0]
 
 
+@pytest.mark.parametrize('fade_px, given, warned', [(20, False, True), (0, False, False), (20, True, False)])
+def test_a_measured_diameter_on_a_soft_rim_is_warned_about(tmp_path, capsys, fade_px, given, warned):
+    """`--circle-fov` with the diameter measured on a rim whose light fades softly: one warning that
+    the scale is put where the light falls steepest and that a spec's circle may be where it ends
+    (real circular fisheyes: 3-4 % of the radius further out, 11-12 % of f); none on a sharp rim,
+    none when the diameter is given."""
+    from scenes import soft_rim
+    path = tmp_path / 'rim.png'
+    cv2.imwrite(str(path), soft_rim(fade_px))
+    flags = ['--circle-fov', '185'] + (['--circle-diameter', '440'] if given else [])
+    status, out, err = run(capsys, str(path), *flags)
+    assert status in (0, NOT_REFINED), err
+    lines = [line for line in err.splitlines() if 'rim fades softly' in line]
+    assert len(lines) == (1 if warned else 0), err
+    if warned:
+        assert lines[0].startswith('zeroshot-calib: warning: ') and 'give --circle-diameter' in lines[0]
+
+
 def test_circle_fov_without_a_circle_in_the_images_is_one_error_line(views, capsys):
     status, out, err = run(capsys, views[0], '--circle-fov', '190')
     assert status == 2 and out == ''

@@ -2993,4 +2993,12 @@ MUTANTS = [
         behaviour='a curve one camera cannot unproject does not make an image look straightened infinitely worse',
         tests=['test/core/estimation/test_refine.py::test_a_curve_one_camera_cannot_unproject_does_not_decide_the_per_image_check'],
     ),
+    dict(
+        id='refine-cli-soft-rim-unwarned',
+        file=f'{PKG}/cli/refine.py',
+        old="        if circle.edge_sigma_px > 0:\n",
+        new="        if circle.edge_sigma_px > 100:\n",
+        behaviour='a diameter measured on a soft rim is warned about: the spec\'s circle may be where the light ends',
+        tests=['test/cli/test_cli_refine.py::test_a_measured_diameter_on_a_soft_rim_is_warned_about'],
+    ),
 ]

@@ -103,6 +103,15 @@ def run(args):
                            f'the image{"s" if len(images) > 1 else ""} (looked for a dark surround with a circular '
                            'boundary seen on opposite sides): give --circle-diameter PX')
         args.circle_diameter = round(circle.diameter, 2)
+        if circle.edge_sigma_px > 0:
+            # where the light ends and where it falls steepest part by a few px on a soft rim, and near
+            # 180 degrees a few px of radius are a large share of f
+            circle_warnings.append(
+                f'the image circle\'s rim fades softly (+- {circle.edge_sigma_px:.1f} px of radius from the fade '
+                f'alone): the diameter measured, {circle.diameter:.1f} px, is where its light falls steepest, and '
+                f'--circle-fov {args.circle_fov:g} puts the scale there; a spec sheet\'s circle may be where the light '
+                'ends, a few px wider (on two real circular fisheyes 3-4 % of the radius, which moved f by 11-12 %): '
+                'give --circle-diameter when the sheet states it')
     spec = _refine_spec(args, width, height)
     if circle is not None and spec.circle_diameter is not None and given_diameter is not None \
             and not circle_diameter_agrees(spec.circle_diameter, circle):
