@@ -569,8 +569,6 @@ def _image_straightened_worse(term: StraightnessTerm, images: List, refined, zs,
     apart), nor the real mixes whose camera is nearer both than zero-shot is
     (benchmarks/results/mixed_cameras.md)."""
     keys = [k for k in dict.fromkeys(images) if sum(1 for i in images if i == k) >= MIN_IMAGE_LINES]
-    if len(keys) < 2:
-        return None
     ratios = {}
     for key in keys:
         sub = term.subset(np.array([i == key for i in images]))
