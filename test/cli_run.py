@@ -55,6 +55,16 @@ def same_result(a, b, key=None, rel=1e-4):
     return a == b
 
 
+def result_differences(a, b, rel=1e-4, path=''):
+    """The paths where ``same_result`` finds two records apart (for a failing test to show)."""
+    if isinstance(a, dict) and isinstance(b, dict) and a.keys() == b.keys():
+        return [d for k in a for d in (result_differences(a[k], b[k], rel, f'{path}/{k}')
+                                       if k not in ('seconds', 'evaluations', 'notes') else [])]
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        return [d for i, (x, y) in enumerate(zip(a, b)) for d in result_differences(x, y, rel, f'{path}[{i}]')]
+    return [] if same_result(a, b, None, rel) else [f'{path}: {a!r} against {b!r}']
+
+
 def _same_arguments(a, b) -> bool:
     if isinstance(a, (list, tuple)):
         return isinstance(b, (list, tuple)) and len(a) == len(b) and all(map(_same_arguments, a, b))

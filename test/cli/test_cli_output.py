@@ -22,7 +22,7 @@ import yaml
 
 import zeroshot_calib_ros.cli as cli
 import zeroshot_calib_ros.cli.output as cli_output
-from cli_run import RecordedComputation, run_main, same_result
+from cli_run import RecordedComputation, result_differences, run_main
 from test_calibration import TRUE, spec_of, synthetic_corners
 from zeroshot_calib_ros.core import CameraCalibration, CameraSpec, solve_zero_shot
 from zeroshot_calib_ros.core.ros_formats.calibration_file import NONZERO_EPSILON
@@ -173,7 +173,11 @@ def test_progress_is_shown_on_a_terminal_and_silent_on_a_pipe_or_with_json(comma
     assert len(computation.calls) == 1, f'the CLI ran {computation.name} once, where the test records it'
     steps = [line for line in err if line.startswith(f'zeroshot-calib: {command}: ')]
     assert status == 0 and len(steps) >= 2 and not any('\r' in line for line in err), err
-    assert same_result(json.loads(shown), json.loads(quiet))
+    # two real runs of the computation: with Ubuntu 24.04's numpy 1.26 they differ in the last digits
+    # run to run (cli_run.same_result), by up to 1e-3 where a solver stops at its evaluation limit
+    # a little elsewhere; a progress callback that changed the computation would move it further
+    differences = result_differences(json.loads(shown), json.loads(quiet), rel=1e-2)
+    assert not differences, differences
     computation.replay()
     status, text, err = run_main(argv, capsys)
     assert status == 0 and not any(line.startswith(f'zeroshot-calib: {command}:') for line in err)
