@@ -42,18 +42,15 @@ MIXES = [('ocam_fisheye2', 'ocam_back', 2), ('ocam_back', 'ocam_fisheye2', 2),
 
 def largest_image_ratio(result) -> float:
     """The largest, over images with at least MIN_IMAGE_LINES used curves, of the fitted camera's
-    line RMS over zero-shot's (nan when fewer than two such images)."""
+    line RMS over zero-shot's (``refine.image_line_rms``: what the per-image check compares; nan
+    when fewer than two such images)."""
     if result.refined_camera is None:
         return math.nan
     used = [c for c, u in zip(result.curves, result.used) if u]
-    images = [curve_image(c) for c in used]
-    ratios = []
-    for key in dict.fromkeys(images):
-        points = [curve_points(c) for c, i in zip(used, images) if i == key]
-        if len(points) >= refine_module.MIN_IMAGE_LINES:
-            term = StraightnessTerm(points, sigma=0.5)
-            ratios.append(term.rms(result.refined_camera) / term.rms(result.zero_shot_camera))
-    return max(ratios) if len(ratios) >= 2 else math.nan
+    term = StraightnessTerm([curve_points(c) for c in used], sigma=0.5)
+    ratios = refine_module.image_line_rms(term, [curve_image(c) for c in used], result.refined_camera,
+                                          result.zero_shot_camera)
+    return max(a / b for a, b in ratios.values()) if len(ratios) >= 2 else math.nan
 
 
 def main(argv=None) -> int:

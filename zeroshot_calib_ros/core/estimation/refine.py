@@ -550,6 +550,34 @@ def _disagreeing_images(images: List, inliers: np.ndarray) -> List:
     return out
 
 
+def _images_with_lines(images: List) -> List:
+    """The images (keys of ``images``, in order of first appearance) with at least
+    ``MIN_IMAGE_LINES`` curves: those that can be judged alone."""
+    counts: Dict = {}
+    for image in images:
+        counts[image] = counts.get(image, 0) + 1
+    return [k for k, n in counts.items() if n >= MIN_IMAGE_LINES]
+
+
+def image_line_rms(term: StraightnessTerm, images: List, camera, other) -> Dict:
+    """{image: (RMS px of its curves under ``camera``, under ``other``)} for every image with at
+    least ``MIN_IMAGE_LINES`` curves (``images``: each curve's image), over the curves both cameras
+    unproject (a point one of them has no ray for, a root its inverse misses, would make an RMS
+    infinite: one point of 24,893 did so under a rendered phone lens's refined camera); an image
+    with no such curve is left out."""
+    a, b = term.curve_rms(camera), term.curve_rms(other)
+    both = np.isfinite(a) & np.isfinite(b)
+    of_image = np.array(images, dtype=object)
+    out = {}
+    for key in _images_with_lines(images):
+        mask = both & (of_image == key)
+        if mask.any():
+            n = term.sizes[mask]
+            out[key] = (float(np.sqrt(np.sum(a[mask] ** 2 * n) / n.sum())),
+                        float(np.sqrt(np.sum(b[mask] ** 2 * n) / n.sum())))
+    return out
+
+
 def _image_straightened_worse(term: StraightnessTerm, images: List, refined, zs, names=None) -> Optional[str]:
     """Why the refined camera is refused when it straightens one image's lines worse than zero-shot
     does (their RMS more than ``MAX_IMAGE_WORSE`` times zero-shot's), among at least two images with
@@ -568,22 +596,10 @@ def _image_straightened_worse(term: StraightnessTerm, images: List, refined, zs,
     at 1920 farther from the right camera than zero-shot; lines of 0.1 px noise do not tell them
     apart), nor the real mixes whose camera is nearer both than zero-shot is
     (benchmarks/results/mixed_cameras.md)."""
-    keys = [k for k in dict.fromkeys(images) if sum(1 for i in images if i == k) >= MIN_IMAGE_LINES]
-    ratios = {}
-    for key in keys:
-        sub = term.subset(np.array([i == key for i in images]))
-        # over the curves both cameras unproject (a point one of them has no ray for, a root its
-        # inverse misses, would make an RMS infinite)
-        a, b = sub.curve_rms(refined), sub.curve_rms(zs)
-        both = np.isfinite(a) & np.isfinite(b)
-        if both.any():
-            n = sub.sizes[both]
-            ratios[key] = (float(np.sqrt(np.sum(a[both] ** 2 * n) / n.sum())),
-                           float(np.sqrt(np.sum(b[both] ** 2 * n) / n.sum())))
-    keys = [k for k in keys if k in ratios]
-    if len(keys) < 2:
+    ratios = image_line_rms(term, images, refined, zs)
+    if len(ratios) < 2:
         return None
-    key = max(keys, key=lambda k: ratios[k][0] / ratios[k][1])
+    key = max(ratios, key=lambda k: ratios[k][0] / ratios[k][1])
     after, before = ratios[key]
     if not after > MAX_IMAGE_WORSE * before:
         return None
@@ -670,7 +686,7 @@ def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, prio
     alone is straightened to 0.75-0.95 of its residual under those two cameras' joint fit, where
     Q weighs every point's evidence."""
     from scipy.special import chdtrc  # chi^2's survival function (scipy.stats takes 1.5 s to import)
-    keys = [k for k in dict.fromkeys(images) if sum(1 for i in images if i == k) >= MIN_IMAGE_LINES]
+    keys = _images_with_lines(images)
     if len(keys) < 2:
         return None
     layout = fit.problem.layout
@@ -698,20 +714,21 @@ def _image_disagreement(fit: LineFit, term: StraightnessTerm, images: List, prio
         return None
 
     def against_others(g):
-        """(chi^2 of image g's camera against the others' weighted mean, that mean)."""
+        """(chi^2 of image g's camera against the others' weighted mean, that mean, the covariance
+        of their difference)."""
         rest = total - weights[g]
         others = np.linalg.solve(rest, sum(w @ x for h, (w, x) in enumerate(zip(weights, xs)) if h != g))
         d = xs[g] - others
-        return float(d @ np.linalg.solve(covs[g] + np.linalg.inv(rest), d)), others
+        spread = covs[g] + np.linalg.inv(rest)
+        return float(d @ np.linalg.solve(spread, d)), others, spread
 
     scores = [against_others(g) for g in range(len(xs))]
     worst = max(range(len(xs)), key=lambda g: scores[g][0])
-    others = scores[worst][1]
+    _, others, spread = scores[worst]
     sd = np.sqrt(np.diag(covs[worst]))
     # the part of the camera that differs most (its chi^2 alone, as a p-value): a principal point
     # within its error bar is no reason to quote it, and the parts may differ only together
     d = xs[worst] - others
-    spread = covs[worst] + np.linalg.inv(total - weights[worst])
     parts = {'principal point': [layout.names.index('cx'), layout.names.index('cy')],
              'focal length': [layout.names.index('f')],
              'lens shape': [i for i, n in enumerate(layout.names) if n not in ('f', 'cx', 'cy')]}
