@@ -17,14 +17,16 @@ Per camera:
   calibration's own views end; a published calibration counts over the whole image.
 - **Spec**: what a spec sheet of this camera would say, derived from the truth: the image circle
   form (``--circle-diameter`` from the circle seen in the photos, ``--circle-fov`` the truth's
-  angle at that radius) for the cameras whose circle is visible, else hfov + vfov + dfov.
+  angle at that radius) for the cameras whose circle is visible, else hfov + vfov + dfov;
+  ``--spec hfov`` / ``--spec dfov``: that FOV alone, as most fisheye spec sheets print one (the
+  lens shape is then the lens prior's).
 - **Zero-shot**: ``refine_from_images`` 's zero-shot camera (what ``solve`` publishes);
   **refined**: the camera it returns (refined when its gate accepts, else zero-shot), and the
   fitted camera whether accepted or not.
 - **Error**: the lens benchmark's metric (``lens_profiles.best_rotation_rms``): RMS pixel error
   over a 33 x 19 grid after the best rotation, scaled to 1920 px wide, over the trusted pixels.
 
-    .venv/bin/python benchmarks/real_photos.py [--images 4] [--only NAME,...] [--out FILE]
+    .venv/bin/python benchmarks/real_photos.py [--images 4] [--only NAME,...] [--spec sheet|hfov|dfov] [--out FILE]
 """
 from __future__ import annotations
 
@@ -110,9 +112,19 @@ def load_cameras(table: Path = TABLE, photos: Path = PHOTOS) -> List[RealCamera]
     return cameras
 
 
-def spec_of(camera: RealCamera) -> CameraSpec:
-    """The spec a sheet of this camera would give (module docstring)."""
+SPEC_FORMS = ('sheet', 'hfov', 'dfov')
+"""``--spec``: 'sheet' (the image circle's form where it is visible, else hfov + vfov + dfov), or one
+FOV alone (what most fisheye spec sheets print), rounded to 0.1 degree as a sheet would."""
+
+
+def spec_of(camera: RealCamera, form: str = 'sheet') -> CameraSpec:
+    """The spec a sheet of this camera would give (module docstring); ``form``: ``SPEC_FORMS``."""
     t = camera.truth
+    if form != 'sheet':
+        value = t.fields_of_view().get(form, math.nan)
+        if not math.isfinite(value):
+            raise ValueError(f'the calibration gives no finite {form}')
+        return CameraSpec(camera.width, camera.height, **{form: round(value, 1)})
     if camera.circle is not None:
         r = camera.circle[2]
         theta = float(t.theta_from_theta_d(np.array([r / ((t.fx + t.fy) / 2)]))[0])
@@ -148,8 +160,8 @@ def evenly(items, n):
     return [items[int(i)] for i in np.linspace(0, len(items) - 1, n).round()]
 
 
-def run_camera(camera: RealCamera, images: int, fov_tolerance: float = 1.0) -> dict:
-    spec = spec_of(camera)
+def run_camera(camera: RealCamera, images: int, fov_tolerance: float = 1.0, form: str = 'sheet') -> dict:
+    spec = spec_of(camera, form)
     paths = evenly(camera.photos, images)
     frames = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in paths]
     start = time.perf_counter()
@@ -165,6 +177,7 @@ def run_camera(camera: RealCamera, images: int, fov_tolerance: float = 1.0) -> d
             'fitted_px': err(result.refined_camera), 'accepted': result.accepted, 'reason': result.reason,
             'lines': result.lines_used, 'seconds_per_image': seconds / len(paths),
             'uncertainty_px': (result.uncertainty_px or math.nan) * scale,
+            'zero_shot_uncertainty_px': (result.zero_shot_uncertainty_px or math.nan) * scale,
             'trusted': 'published' if camera.published else f'own, to {camera.trusted_deg:.0f} deg',
             'grid_points': len(pixels)}
 
@@ -186,14 +199,16 @@ def report(runs, skipped, command, seconds) -> str:
              'the calibration is trusted (published: the whole image; ours: up to 5 degrees past the chessboard '
              'corners seen, and inside the image circle). "better": refined at least 10 % closer than zero-shot; '
              f'"worse": by more than {WORSE_PX} px.', '',
+             '"error / bar": the returned camera\'s error over its stated 1-sigma error bar (both at 1920 px '
+             'wide; the bar is over the whole image).', '',
              '| camera | size | spec | truth | images | zero-shot px | returned px | fitted px | accepted | '
-             'lines | s per image | reason |',
-             '|---|---|---|---|---:|---:|---:|---:|---|---:|---:|---|']
+             'error / bar | lines | s per image | reason |',
+             '|---|---|---|---|---:|---:|---:|---:|---|---:|---:|---:|---|']
     for r in runs:
         lines.append(f"| {r['camera']} | {r['size']} | {r['spec']} | {r['trusted']} | {r['images']} | "
                      f"{_f(r['zero_shot_px'])} | {_f(r['returned_px'])} | {_f(r['fitted_px'])} | "
-                     f"{'yes' if r['accepted'] else 'no'} | {r['lines']} | {_f(r['seconds_per_image'])} | "
-                     f"{r['reason'][:140]} |")
+                     f"{'yes' if r['accepted'] else 'no'} | {_f(r['returned_px'] / r['uncertainty_px'], 1)} | "
+                     f"{r['lines']} | {_f(r['seconds_per_image'])} | {r['reason'][:140]} |")
     better = sum(r['returned_px'] <= 0.9 * r['zero_shot_px'] for r in runs)
     worse = sum(r['returned_px'] > r['zero_shot_px'] + WORSE_PX for r in runs)
     lines += ['', f'{len(runs)} cameras: refined at least 10 % closer on {better}, worse by more than '
@@ -208,6 +223,9 @@ def main(argv=None) -> int:
     parser.add_argument('--images', type=int, default=4, help='photos per camera, evenly through its set')
     parser.add_argument('--only', default='', help='comma-separated camera names')
     parser.add_argument('--fov-tolerance', type=float, default=1.0)
+    parser.add_argument('--spec', choices=SPEC_FORMS, default='sheet',
+                        help="the spec given: 'sheet' (the image circle's form where it is visible, else "
+                             'hfov + vfov + dfov) or one FOV alone')
     parser.add_argument('--out', help='write the report here too')
     args = parser.parse_args(argv)
     command = 'benchmarks/real_photos.py ' + ' '.join(argv if argv is not None else sys.argv[1:])
@@ -221,7 +239,7 @@ def main(argv=None) -> int:
             skipped.append((camera.name, 'photos absent: run benchmarks/fetch_real_cameras.py (see its --help)'))
             continue
         try:
-            run = run_camera(camera, args.images, args.fov_tolerance)
+            run = run_camera(camera, args.images, args.fov_tolerance, args.spec)
         except ValueError as exc:
             skipped.append((camera.name, str(exc)))
             continue

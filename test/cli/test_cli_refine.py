@@ -322,6 +322,34 @@ def test_a_measured_diameter_on_a_soft_rim_is_warned_about(tmp_path, capsys, fad
         assert lines[0].startswith('zeroshot-calib: warning: ') and 'give --circle-diameter' in lines[0]
 
 
+@pytest.mark.parametrize('flags, warned', [(['--hfov', '190'], 'hfov 190 (to the left and right edges)'),
+                                            (['--dfov', '190'], 'dfov 190 (to the corners)'),
+                                            (['--circle-fov', '190'], None)])
+def test_a_fov_stated_across_the_dark_past_the_image_circle_is_warned_about(circular_view, capsys, flags, warned):
+    """A circular fisheye's one figure (its FOV across the image circle) given as hfov or dfov: the
+    edges those are measured to lie past the image circle seen, where nothing is imaged. One warning
+    line on stderr and in --json says so, and to give circle_fov; none with --circle-fov. (Given
+    dfov 190, this render was refined 59.5 px from the truth at 12 times its error bar.)"""
+    status, out, err = run(capsys, circular_view, *flags, '--json')
+    assert status in (0, NOT_REFINED), err
+    record = json.loads(out)
+    lines = [line for line in err.splitlines() if 'nothing is imaged there' in line]
+    in_json = [w for w in record['warning'] if 'nothing is imaged there' in w]
+    if warned is None:
+        assert lines == [] and in_json == [], err
+        return
+    assert len(lines) == 1 and lines[0].startswith('zeroshot-calib: warning: ' + warned), err
+    assert 'give that as circle_fov' in lines[0] and '(440 px across)' in lines[0], lines[0]
+    assert in_json == [lines[0][len('zeroshot-calib: warning: '):]]
+
+
+def test_a_spec_whose_fovs_are_all_imaged_is_not_warned_about_the_dark(views, capsys):
+    """No image circle in the images (a full-frame lens): no FOV is past one."""
+    status, out, err = run(capsys, *views[:2], *SPEC_FLAGS, '--json')
+    assert status in (0, NOT_REFINED), err
+    assert not any('nothing is imaged there' in w for w in json.loads(out)['warning']), err
+
+
 def test_circle_fov_without_a_circle_in_the_images_is_one_error_line(views, capsys):
     status, out, err = run(capsys, views[0], '--circle-fov', '190')
     assert status == 2 and out == ''

@@ -137,7 +137,8 @@ def run(args):
         'centre_sigma_px': circle.centre_sigma_px, 'diameter_sigma_px': 2 * circle.radius_uncertainty_px,
         'measured_from': measured_in, 'images': len(images),
         'diameter_used': 'measured' if measure_diameter else ('given' if spec.circle_diameter is not None else None)}
-    warnings = list(solution.warnings) + circle_warnings  # the spec's FOVs against the zero-shot camera
+    # the spec's FOVs against the zero-shot camera, and against the image circle seen
+    warnings = list(solution.warnings) + circle_warnings + list(result.spec_warnings)
     warnings += [] if result.accepted else fit_warnings(solution, calibration, DISTORTION_FITS['equidistant'](solution.camera))
     summary['uncertainty_px'] = result.uncertainty_px if result.accepted else result.zero_shot_uncertainty_px
     # every key of `solve --json` whatever the verdict (a client reads them without asking which):

@@ -1160,3 +1160,46 @@ def test_the_fit_runs_openblas_in_one_thread_and_gives_the_threads_back():
     finally:
         for (_, put), count in zip(openblas_thread_controls(), before):
             put(count)
+
+
+@pytest.mark.parametrize('radius, fovs, past', [
+    (282.0, {'hfov': 206.3, 'vfov': 141.0}, ['hfov']),   # OCamCalib's 748 x 480 fisheye: clipped top and bottom
+    (282.0, {'dfov': 218.0}, ['dfov']),
+    (230.0, {'vfov': 150.0}, ['vfov']),                   # the circle inside the image on every side
+    (370.0, {'hfov': 200.0}, ['hfov']),                  # off-centre: only the left edge (383.6 px away) is past
+    (460.0, {'hfov': 200.0, 'vfov': 150.0, 'dfov': 230.0}, []),   # a full-frame fisheye: its corners lit
+])
+def test_the_fovs_stated_across_pixels_past_the_image_circle_are_named(radius, fovs, past):
+    """``fovs_past_image_circle`` / ``dark_fov_warning``: a FOV is measured to the image's edges (hfov:
+    left and right, vfov: top and bottom, dfov: the corners) through the principal point, the circle's
+    centre; an edge farther from it than the circle's radius (and its margin) is past the circle, in
+    the dark. One warning line names each such FOV with its value and where its edges are, and says
+    what to give instead (circle_fov), or what states the scale when circle_fov is given."""
+    from zeroshot_calib_ros.core.estimation.refine import dark_fov_warning, fovs_past_image_circle
+    circle = ImageCircle(383.6, 239.4, radius, 0.3, 0.5)
+    spec = CameraSpec(748, 480, **fovs)
+    assert fovs_past_image_circle(spec, circle, 748, 480) == past
+    text = dark_fov_warning(spec, circle, 748, 480)
+    assert (text is None) == (not past)
+    if past:
+        for name in past:
+            assert f'{name} {fovs[name]:g} (to the ' in text
+        assert '\n' not in text and 'give that as circle_fov' in text and f'({2 * radius:.0f} px across)' in text
+        with_circle = CameraSpec(748, 480, circle_diameter=2 * radius, circle_fov=178.7, **fovs)
+        assert 'circle_fov) states the scale where light is' in dark_fov_warning(with_circle, circle, 748, 480)
+    # at half the spec's size (binned images), the same circle measured at half the size
+    half = ImageCircle(383.6 / 2, 239.4 / 2, radius / 2, 0.3, 0.5)
+    assert fovs_past_image_circle(spec, half, 374, 240) == past
+    assert dark_fov_warning(spec, None, 748, 480) is None
+
+
+def test_an_edge_within_the_rims_uncertainty_is_not_past_the_circle():
+    """An hfov whose edges lie on the measured rim, within 3 sigmas of its radius, is not warned
+    about (the rim's fade is the measurement's own doubt), 4 sigmas out it is."""
+    from zeroshot_calib_ros.core.estimation.refine import fovs_past_image_circle
+    spec = CameraSpec(640, 480, hfov=185.0)
+    sigma = 2.0  # radius_uncertainty_px of a rim measured to 2 px
+    on_rim = ImageCircle(320.0, 240.0, 320.0 - 2.9 * sigma, 0.3, sigma)
+    assert fovs_past_image_circle(spec, on_rim, 640, 480) == []
+    beyond = ImageCircle(320.0, 240.0, 320.0 - 3.1 * sigma, 0.3, sigma)
+    assert fovs_past_image_circle(spec, beyond, 640, 480) == ['hfov']

@@ -577,3 +577,19 @@ def test_stop_kills_a_worker_that_does_not_read_its_input(refiner_factory):
     refiner.stop(timeout=0.5)
     assert refiner.join(10.0), 'stop() waited on the pipe instead of killing the worker'
     assert refiner._process.poll() is not None
+
+
+def test_the_node_says_when_a_fov_is_stated_across_the_dark_past_the_image_circle():
+    """The node's refinement (its worker, frame by frame) says what the CLI says of a FOV stated past
+    the image circle seen in the frames, in every frame's reason whatever the verdict; not with the
+    circle's FOV (circle_fov)."""
+    from scenes import ALL_NUISANCES
+    from test_cli_refine import circular_190
+    from zeroshot_calib_ros.core.streaming.online_refinement import _Worker
+    image, _ = render(circular_190(), 'corridor', pose='random', seed=1, nuisances=ALL_NUISANCES)
+    for spec, warned in ((CameraSpec(640, 480, dfov=190.0), True),
+                         (CameraSpec(640, 480, circle_fov=190.0, circle_diameter=440.0), False)):
+        worker = _Worker({'spec': spec, 'fov_tolerance_deg': 1.0, 'initial': None, 'max_frames': 8,
+                          'finish_after': 16})
+        reason = worker.frame(image)['status']['reason']
+        assert ('warning: dfov 190 (to the corners)' in reason and 'circle_fov' in reason) == warned, reason

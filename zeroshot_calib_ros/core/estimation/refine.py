@@ -233,6 +233,8 @@ class Refinement:
     curves: List = field(default_factory=list, repr=False)
     """The curves given, in order (``used`` is over them): what a debug image draws."""
     warnings: List[str] = field(default_factory=list)
+    spec_warnings: List[str] = field(default_factory=list)
+    """What the images show against the spec given (``dark_fov_warning``), accepted or not."""
     zero_shot_uncertainty: Optional[Uncertainty] = field(default=None, repr=False)
     refined_uncertainty: Optional[Uncertainty] = field(default=None, repr=False)
     """The fitted camera's error bar with its covariance (None when no fit was made): the map of
@@ -328,6 +330,60 @@ def circle_term(spec: CameraSpec, circle, width: int, fov_tolerance_deg: float, 
                            width, circle_fov, fov_tolerance_deg, reference)
 
 
+DARK_EDGE_SIGMAS = 3.0
+"""A FOV's edge pixel lies past the image circle seen when it is farther from the circle's centre
+than its radius by more than this many sigmas of the radius (and at least 1 px)."""
+FOV_EDGES = {'hfov': ('the left and right edges', ((0.0, None), (1.0, None))),
+             'vfov': ('the top and bottom edges', ((None, 0.0), (None, 1.0))),
+             'dfov': ('the corners', ((0.0, 0.0), (1.0, 1.0)))}
+"""What each spec FOV spans (``terms.FovTerm``): its edge pixels as fractions of the width and
+height, None where the edge is at the principal point's column or row."""
+
+
+def fovs_past_image_circle(spec: CameraSpec, circle, width: int, height: int) -> List[str]:
+    """The spec's FOVs (hfov, vfov, dfov) with an edge pixel outside the image circle ``circle``
+    measured in images of ``width`` x ``height`` (``core.lines.image_region.ImageCircle``; its
+    centre is the principal point): pixels that no light reaches, where nothing is imaged."""
+    margin = max(1.0, DARK_EDGE_SIGMAS * circle.radius_uncertainty_px)
+    past = []
+    for name in spec.given():
+        edges = [(circle.cx if u is None else u * width, circle.cy if v is None else v * height)
+                 for u, v in FOV_EDGES[name][1]]
+        if any(math.hypot(x - circle.cx, y - circle.cy) > circle.radius + margin for x, y in edges):
+            past.append(name)
+    return past
+
+
+def dark_fov_warning(spec: CameraSpec, circle, width: int, height: int) -> Optional[str]:
+    """One line when a FOV of the spec is stated across pixels outside the image circle seen in the
+    images (``fovs_past_image_circle``), else None. Nothing is imaged there, so the scale such a FOV
+    gives rests on how the lens continues past the last thing imaged, which no line checks. The
+    usual case is a circular fisheye's one figure, its FOV across the image circle, given as hfov or
+    dfov: a rendered 190-degree circular fisheye (640 x 480, two corridor views with every nuisance)
+    given ``dfov 190`` was refined 59.5 px from the truth inside its circle, at 12 times its error
+    bar, and given ``hfov 190`` refused with zero-shot's camera 68 px off (10.4 px stated); given
+    ``circle_fov 190``, refined to 0.8 px. A FOV the lens truly has past its circle is safe where the
+    lens continues as the model does (renders), not always on a real lens: OCamCalib's 748 x 480
+    circular fisheye given its calibration's dfov, 218 degrees across the dark corners, was refined
+    with the shape right and the zoom 19 % off, at 5.7 times its error bar, and given its circle's
+    FOV with the measured diameter and the calibration's hfov across the dark left and right edges,
+    at 4.2 times (benchmarks/real_photos.py --spec dfov; the CLI)."""
+    if circle is None:
+        return None
+    past = fovs_past_image_circle(spec, circle, width, height)
+    if not past:
+        return None
+    given = spec.given()
+    stated = ', '.join(f'{name} {given[name]:g} (to {FOV_EDGES[name][0]})' for name in past)
+    advice = ('the FOV across the image circle (circle_fov) states the scale where light is'
+              if getattr(spec, 'circle_fov', None) is not None else
+              "a circular fisheye's spec sheet usually states its FOV across the image circle: give that as circle_fov")
+    return (f'{stated}: the image circle seen in the images ({circle.diameter:.0f} px across) ends before '
+            f'{"it reaches" if len(past) == 1 else "they reach"} them, so nothing is imaged there and the scale '
+            f'{"it gives" if len(past) == 1 else "they give"} rests on how the lens continues into the dark, which '
+            f'no line checks and the error bar may not cover; {advice}')
+
+
 @one_blas_thread()  # its solves are small: OpenBLAS's threads only wait for busy cores (problem.py)
 def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = None, height: Optional[int] = None,
                   fov_tolerance_deg: float = FOV_TOLERANCE_DEG, initial: Optional[KannalaBrandtCamera] = None,
@@ -370,6 +426,8 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     result.used = np.zeros(len(curves), dtype=bool)
     result.curves = list(curves)
     result.image_circle = image_circle
+    dark = dark_fov_warning(spec, image_circle, width, height)
+    result.spec_warnings = [dark] if dark else []
 
     def refuse(reason):
         result.accepted = False

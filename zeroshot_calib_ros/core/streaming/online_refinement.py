@@ -505,6 +505,8 @@ class _Worker:
         elif self.offered is not None:
             self.since_offer += 1
         finished = self.offered is not None and self.since_offer >= self.finish_after
+        if result.spec_warnings:  # the spec against the frames: said whatever the verdict
+            reason = f'{reason}; warning: {"; ".join(result.spec_warnings)}'
         if resized:
             reason = f'{resized}; {reason}'
         if finished:
