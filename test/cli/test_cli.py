@@ -81,6 +81,9 @@ def test_rectify_an_image_file(tmp_path):
     (['--width', '1920', '--height', '1080', '--hfov', '118', '--vfov', 'nan'], 'vfov = nan is invalid'),
     (['--width', '0', '--height', '1080', '--hfov', '118'], 'width = 0 is invalid'),
     (['--width', '1920', '--height', '1080'], 'at least one of hfov, vfov, dfov'),
+    # a value not given is named as missing, not as "= None" (which reads as a value given)
+    (['--width', '748', '--height', '480', '--circle-fov', '185'],
+     'circle_diameter is not given: the circular-fisheye form needs both'),
     (['--width', '1920', '--height', '1080', '--hfov', '118', '--vfov', '69', '--balance', '2'],
      'balance = 2.0 is invalid: allowed: 0 to 1'),
 ])

@@ -842,13 +842,13 @@ def test_lens_profile_figures_are_the_results_file():
     assert _number(by_key[(wide, 'd only')][10]) <= 20 and _number(by_key[(wide, 'h only')][10]) <= 12
     for name in ('paper ZS', 'ours auto', 'd only', 'h only', 'v only', 'circle'):
         assert _number(by_key[('all', name)][11]) >= 80, name
-    source = re.search(r'(\d+) profiles; (\d+) usable, (\d+) excluded', results).groups()
-    assert ('4,913' in section and '4,621' in section and '292 profiles' in section and
-            source == ('4913', '4621', '292'))
+    total, usable, dropped = (int(x) for x in re.search(r'(\d+) profiles; (\d+) usable, (\d+) excluded', results).groups())
+    assert (f'{total:,}' in section and f'{usable:,}' in section and f'{dropped} profiles' in section and
+            total == 4913 and total == usable + dropped)
     with open(RESULTS / 'lens_profiles_failures.csv', newline='') as f:
         failures = list(csv.DictReader(f))
     excluded = [r for r in failures if r['kind'] == 'excluded']
-    assert len(excluded) == 292 and sum('not monotonic' in r['reason'] for r in excluded) == 274
+    assert len(excluded) == dropped and sum('not monotonic' in r['reason'] for r in excluded) == 274
     head = next(r for r in rows if r[:2] == ['ours auto', 'paper ZS'])
     assert head[2] == '890' and (head[3], head[4], head[6], head[7]) == ('4.38', '4.59', '51 %', '10 %')
     assert 'On the 890 wide lenses' in section and '51 %' in section and '10 %' in section
@@ -916,7 +916,7 @@ def test_real_photo_counts_and_figures_are_the_results_file():
     results = (RESULTS / 'real_photos.md').read_text().split('\n## ')[0]
     better, worse = (int(x) for x in re.search(
         r'refined at least 10 % closer on (\d+), worse by more than 0.3 px on (\d+)', results).groups())
-    rows = [r for r in markdown_rows(results) if len(r) == 12 and r[0] not in ('camera', '---')]
+    rows = [r for r in markdown_rows(results) if len(r) in (12, 13) and r[0] not in ('camera', '---')]
     refused = sum(r[8] == 'no' for r in rows)
     assert len(rows) == 8 and worse == 0
     assert f'refined at least 10 % closer on {better} (' in text and f'refused on {refused}, worse on none' in text
@@ -1257,3 +1257,28 @@ def test_an_internal_error_is_one_line_asking_for_a_report_with_status_1(capsys,
     assert status == 1 and out == '' and len(err) == 1, (status, err)
     assert err[0].startswith('zeroshot-calib: internal error: RuntimeError') and 'report' in err[0]
     assert run_main(['solve', '--width', '0', '--height', '1080', '--hfov', '118'], capsys)[0] == 2
+
+
+def test_one_fov_real_photo_figures_are_the_results_file():
+    """accuracy.md "Refining from ordinary images" (Real photos, one FOV alone): the counts and each
+    camera's zero-shot -> refined figure quoted are the `--spec hfov` / `--spec dfov` sections of
+    `benchmarks/results/real_photos.md`, and so are the two error bars it says understate."""
+    text = ' '.join(doc_section('docs/accuracy.md', 'Refining from ordinary images').split())
+    results = (RESULTS / 'real_photos.md').read_text()
+    counts = []
+    for form in ('hfov', 'dfov'):
+        section = results.split(f'## One FOV alone: `--spec {form}`')[1].split('\n## ')[0]
+        better, worse = (int(x) for x in re.search(
+            r'refined at least 10 % closer on (\d+), worse by more than 0.3 px on (\d+)', section).groups())
+        rows = [r for r in markdown_rows(section) if len(r) == 13 and r[0] not in ('camera', '---')]
+        assert worse == 0
+        counts.append((better, len(rows)))
+        for r in rows:
+            zero_shot, returned, ratio = float(r[5]), float(r[6]), float(r[9])
+            quoted = f'{zero_shot:.1f} -> {returned:.1f}'
+            if r[8] == 'yes' and returned <= 0.9 * zero_shot and ratio <= 2:
+                assert quoted in text, (form, r[0], quoted)
+            if r[8] == 'yes' and ratio > 2:  # the understated ones are named with their figures
+                assert f'{ratio:.1f} times' in text, (form, r[0], ratio)
+    (bh, nh), (bd, nd) = counts
+    assert f'closer than zero-shot by at least 10 % on {bh} of {nh} and {bd} of {nd} cameras and worse on none' in text

@@ -90,7 +90,7 @@ def test_a_hundredth_of_a_degree_on_the_spec_changes_neither_the_lines_nor_the_d
     as_given = real_photos.run_camera(camera, images=1)
     for delta in (-0.01, 0.01):
         shifted = CameraSpec(spec.width, spec.height, **{k: v + delta for k, v in spec.given().items()})
-        monkeypatch.setattr(real_photos, 'spec_of', lambda _: shifted)
+        monkeypatch.setattr(real_photos, 'spec_of', lambda *_: shifted)
         run = real_photos.run_camera(camera, images=1)
         assert (run['lines'], run['accepted']) == (as_given['lines'], as_given['accepted']), (delta, run, as_given)
         assert run['returned_px'] <= run['zero_shot_px'] + real_photos.WORSE_PX, (delta, run)
@@ -117,3 +117,51 @@ def test_a_soft_image_circle_rim_is_measured_with_an_uncertainty_that_holds_and_
     run = real_photos.run_camera(camera, images=4)
     assert run['returned_px'] <= run['zero_shot_px'] + real_photos.WORSE_PX, run
     assert run['returned_px'] <= 2 * run['uncertainty_px'], run
+
+
+def test_a_real_camera_refined_from_one_photo_has_a_ray_for_every_pixel(cameras):
+    """EuRoC's 752 x 480 camera given hfov 93 alone and one photo (frame 95 of the fetched
+    sequence: padded mats, no line near the right corners): the first fit's lens curve turned
+    back at 57 degrees, short of those corners, and it was accepted. Whatever is returned now maps
+    every pixel of the image to a ray, as zero-shot does."""
+    import cv2
+    from zeroshot_calib_ros.core.estimation.refine import refine_from_images
+    from zeroshot_calib_ros.core.estimation.uncertainty import pixel_grid
+    from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
+    camera = cameras['euroc_mt9v034']
+    if len(camera.photos) < 95:
+        pytest.skip('euroc_mt9v034: no photos under benchmarks/data/real_cameras: run '
+                    'benchmarks/fetch_real_cameras.py --kimera <a clone of MIT-SPARK/Kimera-VIO>')
+    frame = cv2.imread(str(camera.photos[94]), cv2.IMREAD_GRAYSCALE)
+    result = refine_from_images(CameraSpec(752, 480, hfov=93.0), [frame])
+    rays = result.camera.unproject(pixel_grid(752, 480))
+    assert np.all(np.isfinite(rays)), (result.accepted, result.reason, result.camera.D)
+
+
+def test_a_one_fov_spec_is_that_fov_of_the_calibration_alone(cameras):
+    """benchmarks/real_photos.py --spec hfov / dfov: the calibration's own FOV, as a sheet prints it
+    (0.1 degree), and no other; 'sheet' is the table's usual spec."""
+    camera = cameras['mynteye_s_jpl_left']
+    fovs = camera.truth.fields_of_view()
+    for form in ('hfov', 'dfov'):
+        spec = real_photos.spec_of(camera, form)
+        assert spec.given() == {form: round(fovs[form], 1)}, (form, spec)
+    assert real_photos.spec_of(camera, 'sheet') == real_photos.spec_of(camera)
+    assert len(real_photos.spec_of(camera).given()) == 3
+
+
+def test_the_spec_option_reaches_every_camera_run(monkeypatch, tmp_path):
+    forms = []
+
+    def record(camera, images, fov_tolerance=1.0, form='sheet'):
+        forms.append(form)
+        return {'camera': camera.name, 'size': '752x480', 'spec': form, 'trusted': 'published', 'images': images,
+                'zero_shot_px': 4.0, 'returned_px': 2.0, 'fitted_px': 2.0, 'accepted': True, 'reason': 'accepted',
+                'lines': 100, 'seconds_per_image': 1.0, 'uncertainty_px': 4.0, 'zero_shot_uncertainty_px': 8.0}
+    monkeypatch.setattr(real_photos, 'run_camera', record)
+    out = tmp_path / 'out.md'
+    assert real_photos.main(['--spec', 'dfov', '--only', 'mynteye_s_jpl_left', '--images', '1', '--out', str(out)]) == 0
+    assert forms == ['dfov']
+    # "error / bar": the returned camera's error over its own error bar (2.0 / 4.0), not zero-shot's
+    row = next(line for line in out.read_text().splitlines() if line.startswith('| mynteye_s_jpl_left'))
+    assert row.split('|')[10].strip() == '0.5', row

@@ -1203,3 +1203,85 @@ def test_an_edge_within_the_rims_uncertainty_is_not_past_the_circle():
     assert fovs_past_image_circle(spec, on_rim, 640, 480) == []
     beyond = ImageCircle(320.0, 240.0, 320.0 - 3.1 * sigma, 0.3, sigma)
     assert fovs_past_image_circle(spec, beyond, 640, 480) == ['hfov']
+
+
+EUROC_TURNED = [0.9413667673048535, -2.842075242672644, 4.432877808560697, -2.2882789278181583]
+"""k1..k4 of the camera a real 752 x 480 camera's one photo was fitted with (EuRoC's, hfov 93 alone):
+its lens curve turns back at 57 degrees, short of the image's corners."""
+
+
+def test_a_camera_without_rays_for_pixels_zero_shot_images_is_named():
+    """``_pixels_without_rays``: the grid pixels the reference (zero-shot) has a ray for and the
+    camera has none for (its lens curve turns back inside the image) are counted, with the angle
+    where the curve turns; none inside an image circle that ends before it; a camera with rays
+    everywhere is fine."""
+    from zeroshot_calib_ros.core.estimation.refine import _pixels_without_rays
+    turned = KannalaBrandtCamera(371.6, 371.6, 403.2, 234.0, 752, 480, EUROC_TURNED)
+    reference = zero_shot_camera(CameraSpec(752, 480, hfov=93.0), 752, 480)
+    reason = _pixels_without_rays(turned, reference, 752, 480)
+    assert reason is not None and 'turns back at 57 degrees' in reason, reason
+    lost = int(reason.split('no ray for ')[1].split(' of ')[0])
+    assert 2 <= lost < 20, reason  # the two corners farthest from its principal point, not the image
+    assert _pixels_without_rays(reference, reference, 752, 480) is None
+    # inside a circle of 300 px about the principal point every pixel has a ray
+    assert _pixels_without_rays(turned, reference, 752, 480, (300.0, (403.2, 234.0))) is None
+
+
+def test_refine_refuses_a_fit_whose_lens_curve_turns_back_inside_the_image(monkeypatch):
+    """A fit that straightens the lines with a lens curve turning back short of the corners (where no
+    line held it) is refused, with the zero-shot camera returned, whatever the other checks say."""
+    from zeroshot_calib_ros.core.estimation import refine as refine_module
+    real = refine_module.fit_lines
+
+    def turned_back(*args, **kwargs):
+        fit = real(*args, **kwargs)
+        fit.camera = KannalaBrandtCamera(fit.camera.fx, fit.camera.fy, fit.camera.cx, fit.camera.cy, W, H,
+                                         [0.9, -2.8, 4.4, -2.3])
+        return fit
+    monkeypatch.setattr(refine_module, 'fit_lines', turned_back)
+    monkeypatch.setattr(refine_module, 'REZOOM', False)
+    rng = np.random.default_rng(7)
+    result = refine_camera(spec_of(TRUTH), views(TRUTH, rng, 10))
+    assert not result.accepted and 'has no ray for' in result.reason, result.reason
+    assert result.camera is result.zero_shot_camera
+
+
+@pytest.mark.parametrize('circle, fovs, past', [
+    # only the corner far from an off-centre circle is dark: dfov is measured to both corners
+    ((300.0, 200.0, 420.0, 0.5), {'dfov': 230.0}, ['dfov']),
+    # a rim measured exactly (no uncertainty) keeps a floor of 1 px: 0.8 px out is on the rim
+    ((300.0, 240.0, 339.2, 0.0), {'hfov': 185.0}, []),
+    # the edges are the FOV's own: x = 0 and x = W (1.8 px out here, past the 1.5 px margin)
+    ((300.0, 240.0, 338.2, 0.5), {'hfov': 185.0}, ['hfov']),
+    # measured through the principal point (the circle's centre), not the image's centre row
+    ((320.0, 100.0, 330.0, 0.5), {'hfov': 185.0}, []),
+])
+def test_a_fov_is_past_the_circle_where_its_own_edges_are(circle, fovs, past):
+    """``fovs_past_image_circle`` on a 640 x 480 image: each FOV's edges where the spec measures it
+    (through the principal point, to x = 0 and x = W, y = 0 and y = H, the corners), against the
+    circle's radius plus max(1 px, 3 sigmas)."""
+    from zeroshot_calib_ros.core.estimation.refine import fovs_past_image_circle
+    cx, cy, radius, sigma = circle
+    spec = CameraSpec(640, 480, **fovs)
+    assert fovs_past_image_circle(spec, ImageCircle(cx, cy, radius, 0.3, sigma), 640, 480) == past
+
+
+def test_the_dark_fov_warning_speaks_of_one_fov_or_several():
+    from zeroshot_calib_ros.core.estimation.refine import dark_fov_warning
+    circle = ImageCircle(383.6, 239.4, 282.0, 0.3, 0.5)
+    one = dark_fov_warning(CameraSpec(748, 480, hfov=206.3), circle, 748, 480)
+    assert 'ends before it reaches them' in one and 'the scale it gives' in one, one
+    two = dark_fov_warning(CameraSpec(748, 480, hfov=206.3, dfov=218.0), circle, 748, 480)
+    assert two.startswith('hfov 206.3 (to the left and right edges), dfov 218 (to the corners): ')
+    assert 'ends before they reach them' in two and 'the scale they give' in two, two
+
+
+def test_images_of_another_size_than_the_spec_are_judged_at_their_own_size():
+    """The spec of a 1280 x 960 mode, images binned to 640 x 480 with the circle measured in them:
+    a full-frame fisheye's circle (420 px of radius there) lights every edge and corner, so no FOV
+    is past it (judged at the spec's size, against a circle measured at half of it, every FOV was)."""
+    spec = CameraSpec(1280, 960, hfov=200.0, vfov=150.0, dfov=230.0)
+    result = refine_camera(spec, [], 640, 480, image_circle=ImageCircle(320.0, 240.0, 420.0, 0.3, 0.5))
+    assert result.spec_warnings == [] and not result.accepted
+    small = refine_camera(spec, [], 640, 480, image_circle=ImageCircle(320.0, 240.0, 260.0, 0.3, 0.5))
+    assert len(small.spec_warnings) == 1 and small.spec_warnings[0].startswith('hfov 200 (to the left and right')

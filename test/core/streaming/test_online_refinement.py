@@ -586,10 +586,15 @@ def test_the_node_says_when_a_fov_is_stated_across_the_dark_past_the_image_circl
     from scenes import ALL_NUISANCES
     from test_cli_refine import circular_190
     from zeroshot_calib_ros.core.streaming.online_refinement import _Worker
+    from test_cli_refine import lit_disc
     image, _ = render(circular_190(), 'corridor', pose='random', seed=1, nuisances=ALL_NUISANCES)
-    for spec, warned in ((CameraSpec(640, 480, dfov=190.0), True),
-                         (CameraSpec(640, 480, circle_fov=190.0, circle_diameter=440.0), False)):
+    for frame, spec, warned, offered in (
+            (image, CameraSpec(640, 480, dfov=190.0), True, True),
+            (image, CameraSpec(640, 480, circle_fov=190.0, circle_diameter=440.0), False, True),
+            (lit_disc(), CameraSpec(640, 480, dfov=190.0), True, False)):  # no line: refused, still said
         worker = _Worker({'spec': spec, 'fov_tolerance_deg': 1.0, 'initial': None, 'max_frames': 8,
                           'finish_after': 16})
-        reason = worker.frame(image)['status']['reason']
+        answer = worker.frame(frame)
+        reason = answer['status']['reason']
+        assert (answer['camera'] is not None) == offered, reason
         assert ('warning: dfov 190 (to the corners)' in reason and 'circle_fov' in reason) == warned, reason

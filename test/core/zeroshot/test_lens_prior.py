@@ -357,16 +357,18 @@ def _grid(width, height, circle_radius=None):
 
 def test_the_lens_shape_spread_is_the_rms_of_the_two_percentile_cameras():
     """hfov 118 on 1920 x 1080: the spread is the root mean square, over the 33 x 19 grid and the
-    two cameras through the same FOV at the 16th and the 84th percentile of real lenses' a,
-    of their pixel displacement from the solved camera after the best rotation (built here
-    from the definition: the paper's equidistant camera, omega = a / f, f by bisection)."""
+    two cameras through the same FOV at the 16th percentile of real lenses' a and at the 84th
+    or the fisheye law (a = 1), whichever is wider, of their pixel displacement from the solved
+    camera after the best rotation (built here from the definition: the paper's equidistant
+    camera, omega = a / f, f by bisection)."""
     from zeroshot_calib_ros.core.lens.models import ZeroShotCamera
     spec = CameraSpec(1920, 1080, hfov=118)
     solution = solve_zero_shot(spec)
     shape = solution.lens_shape
     assert shape.a_low < shape.a < shape.a_high
+    assert shape.spread == (shape.a_low, max(shape.a_high, 1.0))
     squares = []
-    for a in (shape.a_low, shape.a_high):
+    for a in (shape.a_low, max(shape.a_high, 1.0)):
         other = _camera_through(lambda f: ZeroShotCamera(f, 960, 540, 1920, 1080, a / f), (1920, 540),
                                 math.radians(59))
         squares.append(_rms_after_rotation(solution.camera, other, _grid(1920, 1080)) ** 2)

@@ -196,7 +196,9 @@ def test_invalid_spec_names_field_value_and_range(kwargs, field, allowed):
     with pytest.raises(SpecError) as err:
         CameraSpec(**kwargs)
     assert err.value.field == field
-    assert str(err.value).startswith(f'{field} = ')
+    # a value given is quoted; one not given is said to be missing (never "= None")
+    assert str(err.value).startswith(f'{field} is not given: ' if err.value.value is None else f'{field} = ')
+    assert 'None' not in str(err.value)
     assert allowed in str(err.value)
 
 

@@ -359,10 +359,9 @@ def dark_fov_warning(spec: CameraSpec, circle, width: int, height: int) -> Optio
     images (``fovs_past_image_circle``), else None. Nothing is imaged there, so the scale such a FOV
     gives rests on how the lens continues past the last thing imaged, which no line checks. The
     usual case is a circular fisheye's one figure, its FOV across the image circle, given as hfov or
-    dfov: a rendered 190-degree circular fisheye (640 x 480, two corridor views with every nuisance)
-    given ``dfov 190`` was refined 59.5 px from the truth inside its circle, at 12 times its error
-    bar, and given ``hfov 190`` refused with zero-shot's camera 68 px off (10.4 px stated); given
-    ``circle_fov 190``, refined to 0.8 px. A FOV the lens truly has past its circle is safe where the
+    dfov: a rendered 190-degree circular fisheye (640 x 480, a corridor view with every nuisance)
+    given ``hfov 190`` or ``dfov 190`` was refined 46 and 58 px from the truth inside its circle, at
+    14 and 11 times its error bar; given ``circle_fov 190``, to 0.8 px (test_cli_refine's). A FOV the lens truly has past its circle is safe where the
     lens continues as the model does (renders), not always on a real lens: OCamCalib's 748 x 480
     circular fisheye given its calibration's dfov, 218 degrees across the dark corners, was refined
     with the shape right and the zoom 19 % off, at 5.7 times its error bar, and given its circle's
@@ -377,7 +376,8 @@ def dark_fov_warning(spec: CameraSpec, circle, width: int, height: int) -> Optio
     stated = ', '.join(f'{name} {given[name]:g} (to {FOV_EDGES[name][0]})' for name in past)
     advice = ('the FOV across the image circle (circle_fov) states the scale where light is'
               if getattr(spec, 'circle_fov', None) is not None else
-              "a circular fisheye's spec sheet usually states its FOV across the image circle: give that as circle_fov")
+              "a circular fisheye's spec sheet usually states its FOV across the image circle: give that as circle_fov "
+              "(--circle-fov)")
     return (f'{stated}: the image circle seen in the images ({circle.diameter:.0f} px across) ends before '
             f'{"it reaches" if len(past) == 1 else "they reach"} them, so nothing is imaged there and the scale '
             f'{"it gives" if len(past) == 1 else "they give"} rests on how the lens continues into the dark, which '
@@ -496,6 +496,9 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     if result.reach < MIN_REACH or result.coverage < MIN_COVERAGE:
         return refuse(f'lines only near the centre (coverage): the straight ones touch {100 * result.coverage:.0f} % '
                       f'of the image and reach {100 * result.reach:.0f} % of the way to the corners')
+    no_rays = _pixels_without_rays(refined, zs, width, height, _seen_circle(image_circle))
+    if no_rays:
+        return refuse(no_rays)
     disagreeing = _disagreeing_images(images, inliers)
     if disagreeing:
         named = ', '.join(_image_label(image_names, i) for i in disagreeing)
@@ -664,6 +667,29 @@ def _image_straightened_worse(term: StraightnessTerm, images: List, refined, zs,
     return (f'disagreement between images: the camera fitted to all the images straightens the lines of image '
             f'{_image_label(names, key)} worse than zero-shot does ({after:.3g} px RMS against {before:.3g} px) '
             '(images of different cameras or lens settings?)')
+
+
+def _pixels_without_rays(camera, reference, width: int, height: int, seen=None) -> Optional[str]:
+    """Why ``camera`` cannot be the image's camera, or None: it has no ray for a pixel of the
+    image (of the image circle ``seen`` when one is, ``_seen_circle``) that ``reference``
+    (zero-shot) has one for, i.e. its lens curve turns back inside the image, where no line held
+    it. Such a camera cannot be rectified or undistorted where the scene is imaged: a real 752 x
+    480 camera (EuRoC's) given hfov 93 and one photo whose lines stop short of the corners was
+    fitted a Kannala-Brandt curve that turns over at 57 degrees, short of its corners, and was
+    accepted before this check."""
+    radius, centre = (None, None) if seen is None else seen
+    pixels = pixel_grid(width, height, circle_radius=radius, circle_centre=centre)
+    with np.errstate(invalid='ignore', over='ignore'):
+        has = np.all(np.isfinite(reference.unproject(pixels)), axis=1)
+        lost = has & ~np.all(np.isfinite(camera.unproject(pixels)), axis=1)
+    if not lost.any():
+        return None
+    top = camera.theta_max if math.isfinite(getattr(camera, 'theta_max', math.nan)) else None
+    where = f' (its lens curve turns back at {math.degrees(top):.0f} degrees off-axis)' if top is not None else ''
+    over = ' of the image circle seen' if seen is not None else ''
+    return (f'the camera that straightens the lines has no ray for {int(lost.sum())} of {int(has.sum())} grid pixels'
+            f'{over} that zero-shot images{where}: no line reaches there to hold its lens curve; images with lines '
+            'nearer the corners would')
 
 
 def _seen_circle(image_circle):

@@ -435,9 +435,10 @@ def single_constraint_shape(spec: CameraSpec, solution) -> Optional[LensShape]:
 def lens_shape_spread(spec: CameraSpec, solution, grid=GRID) -> Tuple[Optional[float], Optional[LensShape]]:
     """(px, shape): the RMS over the image of the pixel displacement, after the best rotation,
     between the solved camera and the cameras through the same single constraint whose lens is
-    at the 16th and at the 84th percentile of real lenses of that FOV (``lens_prior.py``): the
-    1-sigma spread of the lens shapes the spec leaves open (root mean square of the two), or
-    (None, None) when the spec pins the shape (two constraints or more).
+    at the 16th and at the 84th percentile of real lenses of that FOV, or at the fisheye law
+    when that is wider (``lens_prior.LensShape.spread``): the 1-sigma spread of the lens shapes
+    the spec leaves open (root mean square of the two), or (None, None) when the spec pins the
+    shape (two constraints or more).
 
     Cameras, not a linearisation: the spread is far from small where rectilinear wide-angles
     and fisheyes share a FOV, and the displacement of a lens law is not linear in its a."""
@@ -458,7 +459,7 @@ def _lens_shape_spread(spec: CameraSpec, solution, grid=GRID):
     rays = camera.unproject(pixels)
     rays = rays[np.all(np.isfinite(rays), axis=1)]
     squares, cameras = [], []
-    for a_table in (shape.a_low, shape.a_high):
+    for a_table in shape.spread:
         a = a_for_law(replace(shape, a=a_table), law, c.radius, c.half_angle, spec.diagonal / 2.0,
                       math.pi if law.name in WIDE_LAWS else math.radians(89.9))
         f = focal_through(law, a, c.radius, c.half_angle)

@@ -45,7 +45,10 @@ class SpecError(ValueError):
         self.allowed = allowed
         self.reason = reason
         detail = f'{reason}; ' if reason else ''
-        super().__init__(f'{field} = {value_text(value)} is invalid: {detail}allowed: {allowed}')
+        if value is None:  # a value the input lacks: "= None" would read as one given
+            super().__init__(f'{field} is not given: {detail}allowed: {allowed}')
+        else:
+            super().__init__(f'{field} = {value_text(value)} is invalid: {detail}allowed: {allowed}')
 
 
 def _check_side(field: str, value) -> int:
