@@ -53,3 +53,15 @@ def test_the_results_file_is_this_code(runs):
     for form in ('hfov', 'vfov', 'dfov', 'hfov+vfov+dfov'):
         honest = sum(out[form][0] <= robotics_lenses.HONEST * out[form][1] for _, _, out in runs)
         assert re.search(rf'- {re.escape(form)}: honest on {honest} of {len(runs)} cameras', text), form
+
+
+def test_the_readmes_robotics_sentence_is_this_code(runs):
+    """README "What one FOV costs": one FOV alone '15-25 px off at the median, up to 91 px' (each FOV
+    form's median error, the largest error of any)."""
+    import statistics
+    text = ' '.join((ROOT / 'README.md').read_text().split())
+    medians = [statistics.median(out[form][0] for _, _, out in runs) for form in ('hfov', 'vfov', 'dfov')]
+    largest = max(out[form][0] for _, _, out in runs for form in ('hfov', 'vfov', 'dfov'))
+    low, high = (int(x) for x in re.search(r'one FOV alone is (\d+)-(\d+) px off at the median', text).groups())
+    assert low <= min(medians) and max(medians) <= high + 0.5 and high - low <= 12, medians
+    assert f'up to {largest:.0f} px' in text, largest
