@@ -3057,4 +3057,20 @@ MUTANTS = [
         behaviour="one FOV's error bar holds for robotics cameras' fisheye-law lenses",
         tests=['test/product/test_robotics_lenses.py::test_one_fov_error_bars_hold_on_real_robotics_lenses'],
     ),
+    dict(
+        id='refine-rays-checked-over-the-whole-image',
+        file=f'{PKG}/core/estimation/refine.py',
+        old="    no_rays = _pixels_without_rays(refined, zs, width, height, _seen_circle(image_circle))\n",
+        new="    no_rays = _pixels_without_rays(refined, zs, width, height)\n",
+        behaviour='the rays are checked over the image circle seen (nothing outside it is imaged)',
+        tests=['test/core/estimation/test_refine.py::test_the_camera_returned_is_the_one_checked_for_rays_and_over_the_circle_seen'],
+    ),
+    dict(
+        id='robotics-report-x-bar-inverted',
+        file='benchmarks/robotics_lenses.py',
+        old="            cells.append(f'{error:.1f}, {bar:.1f}, {error / bar:.1f}' if bar else f'{error:.1f}, -, -')\n",
+        new="            cells.append(f'{error:.1f}, {bar:.1f}, {bar / error:.1f}' if bar else f'{error:.1f}, -, -')\n",
+        behaviour="the robotics benchmark's report states error over bar",
+        tests=['test/product/test_robotics_lenses.py::test_the_report_writes_what_the_results_file_holds'],
+    ),
 ]

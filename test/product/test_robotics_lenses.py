@@ -65,3 +65,22 @@ def test_the_readmes_robotics_sentence_is_this_code(runs):
     low, high = (int(x) for x in re.search(r'one FOV alone is (\d+)-(\d+) px off at the median', text).groups())
     assert low <= min(medians) and max(medians) <= high + 0.5 and high - low <= 12, medians
     assert f'up to {largest:.0f} px' in text, largest
+
+
+def test_the_report_writes_what_the_results_file_holds(runs):
+    """``report`` of this run against the results file's first part, line by line: the camera, size,
+    model and FOV columns exactly, each number to 0.2 (error, bar) or 0.1 (x bar, the refit), the
+    honest counts exactly."""
+    written = robotics_lenses.report(runs, 'benchmarks/robotics_lenses.py --out benchmarks/results/robotics_lenses.md', 7.0)
+    stored = (ROOT / 'benchmarks/results/robotics_lenses.md').read_text().split('The run is deterministic')[0]
+
+    def tokens(line):
+        return re.split(r'(-?\d+\.\d+)', line)
+    new_lines = [line for line in written.splitlines() if line.startswith(('| ', '- '))]
+    old_lines = [line for line in stored.splitlines() if line.startswith(('| ', '- '))]
+    assert len(new_lines) == len(old_lines) == 1 + 12 + 4  # the header, the cameras, the counts
+    for new, old in zip(new_lines, old_lines):
+        a, b = tokens(new), tokens(old)
+        assert len(a) == len(b) and a[0::2] == b[0::2], (new, old)
+        for x, y in zip(a[1::2], b[1::2]):
+            assert abs(float(x) - float(y)) <= 0.2, (new, old)

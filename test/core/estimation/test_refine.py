@@ -1223,6 +1223,8 @@ def test_a_camera_without_rays_for_pixels_zero_shot_images_is_named():
     lost = int(reason.split('no ray for ')[1].split(' of ')[0])
     assert 2 <= lost < 20, reason  # the two corners farthest from its principal point, not the image
     assert _pixels_without_rays(reference, reference, 752, 480) is None
+    # only what the reference images counts: a pixel neither has a ray for is nobody's loss
+    assert _pixels_without_rays(turned, turned, 752, 480) is None
     # inside a circle of 300 px about the principal point every pixel has a ray
     assert _pixels_without_rays(turned, reference, 752, 480, (300.0, (403.2, 234.0))) is None
 
@@ -1285,3 +1287,37 @@ def test_images_of_another_size_than_the_spec_are_judged_at_their_own_size():
     assert result.spec_warnings == [] and not result.accepted
     small = refine_camera(spec, [], 640, 480, image_circle=ImageCircle(320.0, 240.0, 260.0, 0.3, 0.5))
     assert len(small.spec_warnings) == 1 and small.spec_warnings[0].startswith('hfov 200 (to the left and right')
+
+
+def test_a_camera_whose_curve_turns_back_just_past_a_corner_is_named():
+    """The grid reaches the image's corners, pixel (W, H) included: a camera whose lens curve turns
+    back 0.3 px short of the far corner (and still has a ray at (W - 1, H - 1)) is named."""
+    from zeroshot_calib_ros.core.estimation.refine import _pixels_without_rays
+    camera = KannalaBrandtCamera(371.6, 371.6, 362.111, 231.135, 752, 480, EUROC_TURNED)
+    reference = zero_shot_camera(CameraSpec(752, 480, hfov=93.0), 752, 480)
+    assert np.all(np.isfinite(camera.unproject(np.array([[751.0, 479.0]]))))
+    reason = _pixels_without_rays(camera, reference, 752, 480)
+    assert reason is not None and 'no ray for 1 of 627 grid pixels' in reason, reason
+
+
+def test_the_camera_returned_is_the_one_checked_for_rays_and_over_the_circle_seen(monkeypatch):
+    """The check judges the camera refine would return (after the zoom is taken from the FOVs), and
+    over the image circle seen when one is (nothing outside it is imaged)."""
+    from zeroshot_calib_ros.core.estimation import refine as refine_module
+    turned = [0.9, -2.8, 4.4, -2.3]
+    monkeypatch.setattr(refine_module, 'rezoom', lambda camera, *args, **kwargs: KannalaBrandtCamera(
+        camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height, turned))
+    rng = np.random.default_rng(7)
+    result = refine_camera(spec_of(TRUTH), views(TRUTH, rng, 10))
+    assert not result.accepted and 'has no ray for' in result.reason, result.reason
+    monkeypatch.undo()
+    seen = []
+    real = refine_module._pixels_without_rays
+
+    def spy(camera, reference, width, height, circle=None):
+        seen.append(circle)
+        return real(camera, reference, width, height, circle)
+    monkeypatch.setattr(refine_module, '_pixels_without_rays', spy)
+    circle = ImageCircle(TRUTH.cx + 3.0, TRUTH.cy - 2.0, 0.45 * W, 0.3, 0.5)
+    refine_camera(spec_of(TRUTH), views(TRUTH, np.random.default_rng(7), 10), image_circle=circle)
+    assert seen == [(circle.radius, (circle.cx, circle.cy))], seen

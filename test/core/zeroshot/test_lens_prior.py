@@ -377,6 +377,26 @@ def test_the_lens_shape_spread_is_the_rms_of_the_two_percentile_cameras():
     assert u.lens_shape_px == pytest.approx(math.sqrt(sum(squares) / 2), rel=0.02)
 
 
+def test_the_spread_reaches_the_fisheye_law_where_the_tables_84th_percentile_stops_short():
+    """hfov 93 on 1920 x 1080: the table's 84th percentile is a nearly rectilinear lens (a about
+    0.42), and robotics cameras of that FOV behind fisheye-law lenses (a = 1) lie far past it; the
+    spread is the RMS of the cameras at the 16th percentile and at a = 1 (lens_prior.FISHEYE_LAW_A)."""
+    from zeroshot_calib_ros.core.lens.models import ZeroShotCamera
+    from zeroshot_calib_ros.core.zeroshot.lens_prior import FISHEYE_LAW_A
+    assert FISHEYE_LAW_A == 1.0
+    spec = CameraSpec(1920, 1080, hfov=93)
+    solution = solve_zero_shot(spec)
+    shape = solution.lens_shape
+    assert shape.a_high < 0.6 and shape.spread == (shape.a_low, 1.0)
+    squares = []
+    for a in (shape.a_low, 1.0):
+        other = _camera_through(lambda f: ZeroShotCamera(f, 960, 540, 1920, 1080, a / f), (1920, 540),
+                                math.radians(46.5))
+        squares.append(_rms_after_rotation(solution.camera, other, _grid(1920, 1080)) ** 2)
+    u = zero_shot_uncertainty(spec, solution=solution)
+    assert u.lens_shape_px == pytest.approx(math.sqrt(sum(squares) / 2), rel=0.02)
+
+
 def test_the_circle_forms_spread_is_over_its_circle_from_lenses_across_its_side():
     """The circle alone (T265: 800 px across its 800-px height, 163 degrees): the spread of real
     lenses whose FOV of 163 degrees spans the image's short side, measured on the grid pixels
