@@ -39,13 +39,13 @@ class SpecError(ValueError):
     line.
     """
 
-    def __init__(self, field: str, value, allowed: str, reason: str = ''):
+    def __init__(self, field: str, value, allowed: str, reason: str = '', missing: bool = False):
         self.field = field
         self.value = value
         self.allowed = allowed
         self.reason = reason
         detail = f'{reason}; ' if reason else ''
-        if value is None:  # a value the input lacks: "= None" would read as one given
+        if missing:  # a value the input lacks: "= None" would read as one given
             super().__init__(f'{field} is not given: {detail}allowed: {allowed}')
         else:
             super().__init__(f'{field} = {value_text(value)} is invalid: {detail}allowed: {allowed}')
@@ -143,7 +143,7 @@ class CameraSpec:
             missing, given = (('circle_fov', 'circle_diameter') if self.circle_fov is None
                               else ('circle_diameter', 'circle_fov'))
             raise SpecError(missing, None, f'a value beside {given}',
-                            'the circular-fisheye form needs both the circle diameter and its FOV')
+                            'the circular-fisheye form needs both the circle diameter and its FOV', missing=True)
         if self.hfov is None and self.vfov is None and self.dfov is None and self.circle_fov is None:
             raise SpecError('hfov', None, 'at least one of hfov, vfov, dfov (or circle_diameter with '
                             'circle_fov)', 'no field of view given')
