@@ -3004,8 +3004,8 @@ MUTANTS = [
     dict(
         id='refine-dark-fov-one-edge-missed',
         file=f'{PKG}/core/estimation/refine.py',
-        old="        if any(math.hypot(x - circle.cx, y - circle.cy) > circle.radius + margin for x, y in edges):\n",
-        new="        if all(math.hypot(x - circle.cx, y - circle.cy) > circle.radius + margin for x, y in edges):\n",
+        old="            if np.any(np.hypot(*(edges[name] - (circle.cx, circle.cy)).T) > circle.radius + margin)]\n",
+        new="            if np.all(np.hypot(*(edges[name] - (circle.cx, circle.cy)).T) > circle.radius + margin)]\n",
         behaviour='a FOV with one edge past the image circle seen is warned about',
         tests=['test/core/estimation/test_refine.py::test_the_fovs_stated_across_pixels_past_the_image_circle_are_named'],
     ),
@@ -3060,7 +3060,7 @@ MUTANTS = [
     dict(
         id='refine-rays-checked-over-the-whole-image',
         file=f'{PKG}/core/estimation/refine.py',
-        old="    no_rays = _pixels_without_rays(refined, zs, width, height, _seen_circle(image_circle))\n",
+        old="    no_rays = _pixels_without_rays(refined, zs, width, height, seen)\n",
         new="    no_rays = _pixels_without_rays(refined, zs, width, height)\n",
         behaviour='the rays are checked over the image circle seen (nothing outside it is imaged)',
         tests=['test/core/estimation/test_refine.py::test_the_camera_returned_is_the_one_checked_for_rays_and_over_the_circle_seen'],

@@ -66,7 +66,7 @@ from typing import Callable, Dict, List, Optional, Sequence
 
 import numpy as np
 
-from ..lens.models import KannalaBrandtCamera
+from ..lens.models import FOV_NAMES, KannalaBrandtCamera, fov_edge_pixels
 from ..lines.bowing import bows_the_wrong_way
 from ..lines.straightness import StraightnessTerm, curve_image, curve_points
 from ..zeroshot.spec import CameraSpec
@@ -333,11 +333,8 @@ def circle_term(spec: CameraSpec, circle, width: int, fov_tolerance_deg: float, 
 DARK_EDGE_SIGMAS = 3.0
 """A FOV's edge pixel lies past the image circle seen when it is farther from the circle's centre
 than its radius by more than this many sigmas of the radius (and at least 1 px)."""
-FOV_EDGES = {'hfov': ('the left and right edges', ((0.0, None), (1.0, None))),
-             'vfov': ('the top and bottom edges', ((None, 0.0), (None, 1.0))),
-             'dfov': ('the corners', ((0.0, 0.0), (1.0, 1.0)))}
-"""What each spec FOV spans (``terms.FovTerm``): its edge pixels as fractions of the width and
-height, None where the edge is at the principal point's column or row."""
+FOV_EDGES = {'hfov': 'the left and right edges', 'vfov': 'the top and bottom edges', 'dfov': 'the corners'}
+"""Where each spec FOV is measured to (``lens.models.fov_edge_pixels``), in words."""
 
 
 def fovs_past_image_circle(spec: CameraSpec, circle, width: int, height: int) -> List[str]:
@@ -345,13 +342,9 @@ def fovs_past_image_circle(spec: CameraSpec, circle, width: int, height: int) ->
     measured in images of ``width`` x ``height`` (``core.lines.image_region.ImageCircle``; its
     centre is the principal point): pixels that no light reaches, where nothing is imaged."""
     margin = max(1.0, DARK_EDGE_SIGMAS * circle.radius_uncertainty_px)
-    past = []
-    for name in spec.given():
-        edges = [(circle.cx if u is None else u * width, circle.cy if v is None else v * height)
-                 for u, v in FOV_EDGES[name][1]]
-        if any(math.hypot(x - circle.cx, y - circle.cy) > circle.radius + margin for x, y in edges):
-            past.append(name)
-    return past
+    edges = dict(zip(FOV_NAMES, fov_edge_pixels(width, height, circle.cx, circle.cy)))
+    return [name for name in spec.given()
+            if np.any(np.hypot(*(edges[name] - (circle.cx, circle.cy)).T) > circle.radius + margin)]
 
 
 def dark_fov_warning(spec: CameraSpec, circle, width: int, height: int) -> Optional[str]:
@@ -361,8 +354,9 @@ def dark_fov_warning(spec: CameraSpec, circle, width: int, height: int) -> Optio
     usual case is a circular fisheye's one figure, its FOV across the image circle, given as hfov or
     dfov: a rendered 190-degree circular fisheye (640 x 480, a corridor view with every nuisance)
     given ``hfov 190`` or ``dfov 190`` was refined 46 and 58 px from the truth inside its circle, at
-    14 and 11 times its error bar; given ``circle_fov 190``, to 0.8 px (test_cli_refine's). A FOV the lens truly has past its circle is safe where the
-    lens continues as the model does (renders), not always on a real lens: OCamCalib's 748 x 480
+    14 and 11 times its error bar; given ``circle_fov 190``, to 0.8 px (test_cli_refine's). A FOV
+    the lens truly has past its circle is safe where the lens continues as the model does
+    (renders), not always on a real lens: OCamCalib's 748 x 480
     circular fisheye given its calibration's dfov, 218 degrees across the dark corners, was refined
     with the shape right and the zoom 19 % off, at 5.7 times its error bar, and given its circle's
     FOV with the measured diameter and the calibration's hfov across the dark left and right edges,
@@ -373,7 +367,7 @@ def dark_fov_warning(spec: CameraSpec, circle, width: int, height: int) -> Optio
     if not past:
         return None
     given = spec.given()
-    stated = ', '.join(f'{name} {given[name]:g} (to {FOV_EDGES[name][0]})' for name in past)
+    stated = ', '.join(f'{name} {given[name]:g} (to {FOV_EDGES[name]})' for name in past)
     advice = ('the FOV across the image circle (circle_fov) states the scale where light is'
               if getattr(spec, 'circle_fov', None) is not None else
               "a circular fisheye's spec sheet usually states its FOV across the image circle: give that as circle_fov "
@@ -496,7 +490,7 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     if result.reach < MIN_REACH or result.coverage < MIN_COVERAGE:
         return refuse(f'lines only near the centre (coverage): the straight ones touch {100 * result.coverage:.0f} % '
                       f'of the image and reach {100 * result.reach:.0f} % of the way to the corners')
-    no_rays = _pixels_without_rays(refined, zs, width, height, _seen_circle(image_circle))
+    no_rays = _pixels_without_rays(refined, zs, width, height, seen)
     if no_rays:
         return refuse(no_rays)
     disagreeing = _disagreeing_images(images, inliers)

@@ -40,6 +40,16 @@ def angle_between(a, b) -> np.ndarray:
     return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
 
 
+FOV_NAMES = ('hfov', 'vfov', 'dfov')
+
+
+def fov_edge_pixels(width: float, height: float, cx: float, cy: float) -> np.ndarray:
+    """(3, 2, 2): the two edge pixels each spec FOV is measured between, in ``FOV_NAMES``' order,
+    through the principal point (cx, cy): hfov (0, cy)-(W, cy), vfov (cx, 0)-(cx, H), dfov
+    (0, 0)-(W, H)."""
+    return np.array([[[0, cy], [width, cy]], [[cx, 0], [cx, height]], [[0, 0], [width, height]]], dtype=float)
+
+
 class CameraModel:
     """Shared behaviour: intrinsics, image size and the derived conveniences."""
 
@@ -82,7 +92,7 @@ class CameraModel:
         when the rays are not coplanar with the axis (tangential distortion, dfov with the
         principal point off the diagonal). NaN where an edge pixel has no ray."""
         w, h, cx, cy = self.width, self.height, self.cx, self.cy
-        px = np.array([[0, cy], [w, cy], [cx, 0], [cx, h], [0, 0], [w, h]], dtype=float)
+        px = fov_edge_pixels(w, h, cx, cy).reshape(-1, 2)
         r = self.unproject(px)
         plain = angle_between(r[0::2], r[1::2])
         off_axis = np.arctan2(np.linalg.norm(r[:, :2], axis=-1), r[:, 2])

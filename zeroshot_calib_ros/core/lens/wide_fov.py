@@ -32,7 +32,7 @@ from typing import Optional
 
 import numpy as np
 
-from .models import CameraModel, ZeroShotCamera, angle_between
+from .models import CameraModel, ZeroShotCamera, angle_between, fov_edge_pixels
 from .projections import PROJECTIONS, FisheyeProjection
 
 WIDE = 'wide'
@@ -91,9 +91,7 @@ def fields_of_view_through_axis(camera: CameraModel) -> dict:
     angles add up to more than 180 degrees the angle is measured through the optical axis
     (360 degrees minus the plain angle between the rays): a 200-degree lens has hfov 200, not 160.
     Identical to ``fields_of_view`` below 180 degrees; NaN where a pixel has no ray."""
-    w, h, cx, cy = camera.width, camera.height, camera.cx, camera.cy
-    px = np.array([[0, cy], [w, cy], [cx, 0], [cx, h], [0, 0], [w, h]], dtype=float)
-    rays = camera.unproject(px)
+    rays = camera.unproject(fov_edge_pixels(camera.width, camera.height, camera.cx, camera.cy).reshape(-1, 2))
     off_axis = np.arctan2(np.linalg.norm(rays[:, :2], axis=-1), rays[:, 2])
     angle = angle_between(rays[0::2], rays[1::2])
     angle = np.where(off_axis[0::2] + off_axis[1::2] > np.pi, 2.0 * np.pi - angle, angle)
