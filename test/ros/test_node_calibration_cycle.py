@@ -244,7 +244,9 @@ def test_a_calibration_whose_maps_take_long_is_answered_as_not_in_force_yet_and_
     peer.spin_until(lambda: infos[-1].width == 16000, timeout=120, what='the calibration in force')
     peer.spin_until(path.exists, timeout=5, what='the file, once in force')
     assert yaml.safe_load(path.read_text())['image_width'] == 16000
-    assert f'calibration from set_camera_info in force and saved to {path}' in node.log
+    # The node logs after saving, and its output reaches us through a pipe: wait for the line
+    saved = f'calibration from set_camera_info in force and saved to {path}'
+    peer.spin_until(lambda: saved in node.log, timeout=5, what='the log saying it is in force and saved')
 
 
 def test_image_rect_honours_the_rotation_of_a_set_camera_info_calibration(peer, start_node):
