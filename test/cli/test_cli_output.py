@@ -415,3 +415,19 @@ def test_the_record_of_a_refined_camera_keeps_the_image_circle_of_the_spec():
     from zeroshot_calib_ros.core.ros_formats.calibration_file import summary_text
     first = summary_text(summary).splitlines()[0]
     assert first == 'camera    748 x 480 px, circle_diameter 564.5 px, circle_fov 178.7 deg', first
+
+
+def test_fovs_printed_across_the_dark_past_the_image_circle_are_marked(capsys):
+    """A circular fisheye's predicted hfov and dfov run past its image circle into the dark corners,
+    where the lens model only continues (a 560 px circle in a 748 x 480 image: h 250 degrees):
+    the FOV line marks them and says why; the vfov, inside the circle, and every FOV of a camera
+    whose circle covers the image, are not marked."""
+    def fov_line(*spec):
+        status, out, err = run_main(['solve', '--width', '748', '--height', '480', *spec], capsys)
+        assert status == 0, err
+        return next(line for line in out.splitlines() if line.startswith('FOV'))
+    line = fov_line('--circle-diameter', '560', '--circle-fov', '187')
+    assert re.match(r'FOV +h [\d.]+\*, v [\d.]+, d [\d.]+\* deg \(predicted; \*: past the image circle', line), line
+    assert 'nothing is imaged there' in line, line
+    for spec in (('--circle-diameter', '900', '--circle-fov', '187'), ('--hfov', '187')):
+        assert '*' not in fov_line(*spec), fov_line(*spec)

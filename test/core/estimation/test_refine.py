@@ -1300,6 +1300,18 @@ def test_a_camera_whose_curve_turns_back_just_past_a_corner_is_named():
     assert reason is not None and 'no ray for 1 of 627 grid pixels' in reason, reason
 
 
+def test_a_camera_that_ends_at_180_degrees_short_of_pixels_is_not_said_to_turn_back():
+    """A lens curve that rises all the way to 180 degrees but ends there short of pixels zero-shot
+    images (a focal too short for the image) does not turn back: the reason says where it ends."""
+    from zeroshot_calib_ros.core.estimation.refine import _pixels_without_rays
+    reference = zero_shot_camera(CameraSpec(752, 480, hfov=93.0), 752, 480)
+    short = KannalaBrandtCamera(100.0, 100.0, 376.0, 240.0, 752, 480, [0.0, 0.0, 0.0, 0.0])
+    assert short.theta_max == pytest.approx(np.pi)
+    reason = _pixels_without_rays(short, reference, 752, 480)
+    assert reason is not None and 'turns back' not in reason, reason
+    assert 'ends at 180 degrees off-axis' in reason, reason
+
+
 def test_the_camera_returned_is_the_one_checked_for_rays_and_over_the_circle_seen(monkeypatch):
     """The check judges the camera refine would return (after the zoom is taken from the FOVs), and
     over the image circle seen when one is (nothing outside it is imaged)."""

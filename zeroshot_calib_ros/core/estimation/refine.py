@@ -679,7 +679,12 @@ def _pixels_without_rays(camera, reference, width: int, height: int, seen=None) 
     if not lost.any():
         return None
     top = camera.theta_max if math.isfinite(getattr(camera, 'theta_max', math.nan)) else None
-    where = f' (its lens curve turns back at {math.degrees(top):.0f} degrees off-axis)' if top is not None else ''
+    if top is None:
+        where = ''
+    elif top < math.pi - 1e-6:
+        where = f' (its lens curve turns back at {math.degrees(top):.0f} degrees off-axis)'
+    else:  # rises to the model's end: a focal too short for the image, nothing turns back
+        where = ' (its lens curve ends at 180 degrees off-axis, short of them)'
     over = ' of the image circle seen' if seen is not None else ''
     return (f'the camera that straightens the lines has no ray for {int(lost.sum())} of {int(has.sum())} grid pixels'
             f'{over} that zero-shot images{where}: no line reaches there to hold its lens curve; images with lines '

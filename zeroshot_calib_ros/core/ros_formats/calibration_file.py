@@ -31,7 +31,7 @@ import yaml
 
 from ..atomic_file import SaveError, write_atomically
 from ..file_input import InputFileError, read_capped
-from ..lens.models import CameraModel, camera_from_calibration
+from ..lens.models import FOV_NAMES, CameraModel, camera_from_calibration, fov_edge_pixels
 from ..lens.fitting import DISTORTION_FITS
 from .rectify import new_camera_matrix
 from ..zeroshot.solver import ZeroShotSolution
@@ -1028,6 +1028,30 @@ def solution_summary(solution: ZeroShotSolution, calibration: CameraCalibration,
     })
 
 
+def _fovs_past_circle(summary: dict) -> set:
+    """The predicted FOVs whose edge pixels lie outside the spec's image circle (centred on the
+    principal point): there no light reaches, and the figure is the lens model continued into the
+    dark, not something the camera sees (a 187-degree circular fisheye's "hfov" of 250 degrees)."""
+    diameter = summary['spec'].get('circle_diameter')
+    if diameter is None:
+        return set()
+    centre = np.array([summary['cx'], summary['cy']])
+    edges = fov_edge_pixels(summary['width'], summary['height'], *centre)
+    return {name for name, pair in zip(FOV_NAMES, edges) if np.hypot(*(pair - centre).T).max() > diameter / 2 + 1.0}
+
+
+def _fov_line(summary: dict) -> str:
+    past = _fovs_past_circle(summary)
+    values = ', '.join(f"{k[0]} {'-' if summary[k] is None else format(summary[k], '.3f')}{'*' if k in past else ''}"
+                       for k in FOV_NAMES)
+    notes = ['predicted']
+    if None in (summary[k] for k in FOV_NAMES):
+        notes.append('- : no ray')
+    if past:
+        notes.append('*: past the image circle: nothing is imaged there, this is the lens model continued into the dark')
+    return f"FOV       {values} deg ({'; '.join(notes)})"
+
+
 def summary_text(summary: dict) -> str:
     """A readable block of a ``solution_summary`` (CLI output, node start-up log)."""
     spec = ', '.join(f'{k} {v:g} px' if k == 'circle_diameter' else f'{k} {v:g} deg'
@@ -1045,10 +1069,7 @@ def summary_text(summary: dict) -> str:
         f"D         {summary['distortion_model']} [{', '.join(f'{d:.9g}' for d in summary['D'])}]"
         + (f' ({note})' if note else ''),
         f"fit error {summary['fit_error_px']:.2g} px (max over the image)",
-        'FOV       ' + ', '.join(f"{k[0]} {'-' if summary[k] is None else format(summary[k], '.3f')}"
-                                 for k in ('hfov', 'vfov', 'dfov'))
-        + (' deg (predicted; - : no ray)' if None in (summary['hfov'], summary['vfov'], summary['dfov'])
-           else ' deg (predicted)'),
+        _fov_line(summary),
     ]
     for name, res in summary['dfov_residuals'].items():
         lines.append(f"  dfov residual {name:13s} {res:+.3f} deg" + ('  <- chosen' if name == summary['model'] else ''))
