@@ -99,11 +99,13 @@ $(BSTAMP): $(VSTAMP) $(SOURCES)
 # so they are given it as the command and the node run: five processes on two cores with OpenBLAS's
 # own threads waiting beside them made the ROS-free run on Jazzy's libraries ~1.7x the CPU time
 # (a board fit 5x; benchmarks/results/blas_threads.md).
+# The fuzz tests' generated cases are split between the two ROS-free runs (test/fuzz_settings.py:
+# each draws its half from a seed of its own): the two runs fuzz different cases, not the same twice.
 TEST_BACKGROUND ?= chrt --idle 0
 TEST_BLAS = OPENBLAS_NUM_THREADS=1
-LIBS_RUN = $(TEST_BLAS) ZEROSHOT_ROS_FREE_ONLY=1 ZEROSHOT_SHARD=$(1)/2 $(TEST_BACKGROUND) $(LIBS_VENV)/bin/python -m pytest -q \
+LIBS_RUN = $(TEST_BLAS) ZEROSHOT_ROS_FREE_ONLY=1 ZEROSHOT_SHARD=$(1)/2 ZEROSHOT_FUZZ_PART=2/2 $(TEST_BACKGROUND) $(LIBS_VENV)/bin/python -m pytest -q \
 	-p no:cacheprovider test $(PYTEST_ARGS) > log/test-jazzy-libs-$(1).log 2>&1; echo $$? > log/test-jazzy-libs-$(1).rc
-FREE_RUN = $(TEST_BLAS) ZEROSHOT_ROS_FREE_ONLY=1 ZEROSHOT_SHARD=$(1)/2 $(ROS_ENV) $(TEST_BACKGROUND) $(VPY) -m pytest -q \
+FREE_RUN = $(TEST_BLAS) ZEROSHOT_ROS_FREE_ONLY=1 ZEROSHOT_SHARD=$(1)/2 ZEROSHOT_FUZZ_PART=1/2 $(ROS_ENV) $(TEST_BACKGROUND) $(VPY) -m pytest -q \
 	-p no:cacheprovider --durations=5 test $(PYTEST_ARGS) > log/test-ros-free-$(1).log 2>&1; echo $$? > log/test-ros-free-$(1).rc
 test: $(BSTAMP) $(LSTAMP)
 	@mkdir -p $(TOP)/log

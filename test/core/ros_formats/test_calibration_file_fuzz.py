@@ -15,6 +15,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from zeroshot_calib_ros.core.ros_formats.calibration_file import (CalibrationFileError, CameraCalibration,
                                                       RegionOfInterest)
 
+from fuzz_settings import share
 from test_calibration_file import INI_FROM_CPP, YAML_FROM_CPP
 
 SETTINGS = dict(deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
@@ -131,7 +132,7 @@ def _run(name, test):
 
 
 def test_random_yaml_documents():
-    @settings(max_examples=500, **SETTINGS)
+    @settings(max_examples=share(500), **SETTINGS)
     @given(documents)
     def check(count, document):
         text = yaml.safe_dump(document, allow_unicode=True)
@@ -140,11 +141,11 @@ def test_random_yaml_documents():
             count[_check(CameraCalibration.from_dict, document)] += 1
 
     count = _run('random YAML documents', lambda c: check(c))
-    assert count['refused'] >= 500
+    assert count['refused'] >= share(500)
 
 
 def test_mutated_yaml_mappings():
-    @settings(max_examples=400, **SETTINGS)
+    @settings(max_examples=share(400), **SETTINGS)
     @given(mutated_dicts())
     def check(count, d):
         count[_check(CameraCalibration.from_yaml_text, yaml.safe_dump(d, allow_unicode=True))] += 1
@@ -158,7 +159,7 @@ def test_mutated_yaml_mappings():
     ('mutated YAML texts', CameraCalibration.from_yaml_text, YAML_FROM_CPP, NASTY),
     ('mutated INI texts', CameraCalibration.from_ini_text, INI_FROM_CPP, NASTY_INI)])
 def test_mutated_texts(label, parse, sample, nasty):
-    @settings(max_examples=1000, **SETTINGS)
+    @settings(max_examples=share(1000), **SETTINGS)
     @given(mutated_texts(sample, nasty))
     def check(count, text):
         count[_check(parse, text)] += 1
@@ -169,7 +170,7 @@ def test_mutated_texts(label, parse, sample, nasty):
 
 def test_random_bytes_as_files():
     with tempfile.TemporaryDirectory() as directory:
-        @settings(max_examples=200, **SETTINGS)
+        @settings(max_examples=share(200), **SETTINGS)
         @given(st.binary(max_size=2048), st.sampled_from(['.yaml', '.yml', '.ini']))
         def check(count, data, suffix):
             path = os.path.join(directory, f'cam{suffix}')
@@ -219,7 +220,7 @@ def valid_calibrations(draw):
 
 def test_valid_calibrations_save_and_load_unchanged():
     with tempfile.TemporaryDirectory() as directory:
-        @settings(max_examples=100, **SETTINGS)
+        @settings(max_examples=share(100), **SETTINGS)
         @given(valid_calibrations(), st.sampled_from(['.yaml', '.ini']))
         def check(count, calibration, suffix):
             path = os.path.join(directory, f'cam{suffix}')
@@ -234,4 +235,4 @@ def test_valid_calibrations_save_and_load_unchanged():
             assert set(os.listdir(directory)) <= {'cam.yaml', 'cam.ini'}  # no temporary files
 
         count = _run('valid calibrations saved and loaded', lambda c: check(c))
-        assert count['loaded'] > 50
+        assert count['loaded'] > 0.4 * share(100)  # about 2 in 3: the ini format takes plumb_bob only

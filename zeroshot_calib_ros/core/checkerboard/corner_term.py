@@ -162,15 +162,16 @@ class CornerTerm:
             done = np.zeros(idx.size, dtype=bool)
             scale = np.ones(idx.size)
             for _half in range(8):
-                trial = p + scale[:, None] * step
-                new_r = self._penalised_rows(camera, trial, idx)
+                todo = np.flatnonzero(~done)  # only the views still halving their step are evaluated
+                trial = p[todo] + scale[todo, None] * step[todo]
+                new_r = self._penalised_rows(camera, trial, idx[todo])
                 new_cost = np.sum(new_r * new_r, axis=1)
-                better = new_cost <= cost[idx] * (1 + 1e-12) + 1e-300
-                take = better & ~done
-                poses[idx[take]] = trial[take]
-                r[idx[take]] = new_r[take]
-                cost[idx[take]] = new_cost[take]
-                done |= better
+                better = new_cost <= cost[idx[todo]] * (1 + 1e-12) + 1e-300
+                take = idx[todo[better]]
+                poses[take] = trial[better]
+                r[take] = new_r[better]
+                cost[take] = new_cost[better]
+                done[todo[better]] = True
                 if np.all(done):
                     break
                 scale = np.where(done, scale, 0.5 * scale)

@@ -41,9 +41,13 @@ def rodrigues(rvecs) -> np.ndarray:
     theta2 = np.sum(r * r, axis=-1)[..., None, None]
     theta = np.sqrt(theta2)
     small = theta2 < 1e-12
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / np.where(small, 1.0, theta2))
+    if not small.any():  # the usual case, the same numbers without the guards (a pose solve's hot path)
+        a = np.sin(theta) / theta
+        b = (1.0 - np.cos(theta)) / theta2
+    else:
+        safe = np.where(small, 1.0, theta)
+        a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
+        b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / np.where(small, 1.0, theta2))
     kx = np.zeros(r.shape[:-1] + (3, 3))  # the cross-product matrix of r
     kx[..., 0, 1], kx[..., 0, 2], kx[..., 1, 2] = -r[..., 2], r[..., 1], -r[..., 0]
     kx[..., 1, 0], kx[..., 2, 0], kx[..., 2, 1] = r[..., 2], -r[..., 1], r[..., 0]
