@@ -258,6 +258,19 @@ def test_solve(files, data):
     check(argv, *run(argv), batch=batch)
 
 
+def test_a_batch_row_with_a_fov_no_lens_has_is_refused_naming_the_fov(tmp_path):
+    """Found by the fuzz run: hfov 1e-320 (a BOM before the name) overflowed its focal length with
+    numpy warnings and was refused as "K (camera_matrix) is invalid"; the row's error names the
+    FOV and its range, with no warning."""
+    path = tmp_path / 'cams.csv'
+    path.write_bytes(b'\xef\xbb\xbfw1,1,5,1e-320\nw2,640,480,90\n')
+    status, out, err, caught = run(['solve', '--batch', str(path)])
+    assert status == 1 and not caught, (err, caught)
+    first, second = [strict_json(line) for line in out.splitlines()]
+    assert first['name'] == 'w1' and first['error'].startswith('hfov = 1e-320 is invalid: allowed: degrees, at least 0.01')
+    assert 'error' not in second and second['name'] == 'w2'
+
+
 @given(data=st.data(), text=csv_text())
 @examples(150)
 def test_solve_batch(files, data, text):

@@ -398,7 +398,7 @@ def test_an_invalid_circle_fov_is_named_before_any_circle_is_looked_for(views, c
     assert status == 2 and out == ''
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith('zeroshot-calib: error: circle_fov = '), lines
-    assert 'allowed: degrees, greater than 0 and less than' in lines[0], lines
+    assert 'allowed: degrees, at least 0.01 and less than' in lines[0], lines
 
 
 def test_refine_reports_progress_to_its_callback_and_the_result_is_the_same(views):

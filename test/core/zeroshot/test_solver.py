@@ -185,8 +185,11 @@ def test_dfov_selects_the_true_projection(name):
     (dict(width=1280.5, height=720, hfov=90), 'width', 'from 1 to'),
     (dict(width=1280, height=-1, hfov=90), 'height', 'from 1 to'),
     (dict(width=1280, height='720', hfov=90), 'height', 'from 1 to'),
-    (dict(width=1280, height=720, hfov=float('nan')), 'hfov', 'greater than 0'),
-    (dict(width=1280, height=720, hfov=0.0), 'hfov', 'greater than 0'),
+    (dict(width=1280, height=720, hfov=float('nan')), 'hfov', 'at least 0.01'),
+    (dict(width=1280, height=720, hfov=0.0), 'hfov', 'at least 0.01'),
+    # a FOV no lens has: its focal (1e320 px) overflowed into a calibration error about K
+    (dict(width=1, height=5, hfov=1e-320), 'hfov', 'at least 0.01'),
+    (dict(width=1280, height=720, hfov=90, dfov=0.009), 'dfov', 'at least 0.01'),
     (dict(width=1280, height=720, hfov=90, vfov=float('inf')), 'vfov', 'less than 360'),
     (dict(width=1280, height=720), 'hfov', 'at least one'),
     (dict(width=1280, height=720, circle_fov=185.0), 'circle_diameter', 'a value beside circle_fov'),

@@ -11,7 +11,9 @@ forward differences with the layout's steps, so every term only needs ``residual
 A Jacobian's columns are independent evaluations of the problem: inside ``jacobian_threads(n)``
 they are computed in ``n`` threads (numpy releases the GIL over arrays of the sizes line fits
 have), with the same values in the same order as in one thread; terms must therefore keep no
-state between ``residuals`` calls (none does).
+state between ``residuals`` calls. The line terms keep none (refine uses the threads); the board's
+corner term keeps its last poses as the next pose solve's start (``CornerTerm``), so board fits
+compute their columns in the calling thread.
 
 The solver's large products and decompositions (the trust region's SVD of the Jacobian, tens of
 thousands of rows) go to BLAS, which, when it is OpenBLAS, starts a thread per core for each;

@@ -24,6 +24,9 @@ def value_text(value, limit: int = VALUE_TEXT_CHARS) -> str:
 
 MAX_FOV_DEG = 360.0
 """A spec FOV is an angle across the image; models narrow this further (see projections)."""
+MIN_FOV_DEG = 0.01
+"""The narrowest spec FOV: a telescope's is a tenth of a degree. Below it the focal length leaves
+every range a calibration file allows (1e-320 degrees overflowed it to infinity)."""
 
 FOV_TOLERANCE_DEG = 1.0
 """Default standard deviation of a spec FOV (degrees): a spec sheet's rounding and its
@@ -68,11 +71,11 @@ def check_fov(field: str, value) -> Optional[float]:
     """``value`` as degrees (None: not given), or SpecError naming ``field`` and the allowed range."""
     if value is None:
         return None
-    allowed = f'degrees, greater than 0 and less than {MAX_FOV_DEG:g}, or not given'
+    allowed = f'degrees, at least {MIN_FOV_DEG:g} and less than {MAX_FOV_DEG:g}, or not given'
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise SpecError(field, value, allowed, 'not a number')
     value = float(value)
-    if not math.isfinite(value) or not 0.0 < value < MAX_FOV_DEG:
+    if not math.isfinite(value) or not MIN_FOV_DEG <= value < MAX_FOV_DEG:
         raise SpecError(field, value, allowed)
     return value
 
