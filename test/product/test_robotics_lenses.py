@@ -13,6 +13,17 @@ sys.path.insert(0, str(ROOT / 'benchmarks'))
 
 import robotics_lenses  # noqa: E402
 
+SHARE = 0.03
+"""Numbers are compared to 0.2 px or 3 % of their size, whichever is larger. An error bar rests on
+the Laplace covariance at the solution, and where the spec pins the law's second parameter barely
+(the RealSense D455's h+v+d solves to omega 0: a = w f uncertain by 17,000 px) its last digits go
+into the bar: 12.6 px with numpy 2.4, 12.8 with numpy 1.26 on one machine, 12.9 on another. No
+user reads a difference of 3 % in an error bar."""
+
+
+def close(x: float, y: float, floor: float = 0.2) -> bool:
+    return abs(x - y) <= max(floor, SHARE * abs(y))
+
 
 @pytest.fixture(scope='module')
 def runs():
@@ -40,7 +51,8 @@ def test_the_radtan_calibrations_are_held_as_kannala_brandt_to_about_a_pixel(run
 
 def test_the_results_file_is_this_code(runs):
     """benchmarks/results/robotics_lenses.md's first table and counts, recomputed (errors and bars
-    to 0.2 px: the run has no images and no random numbers, only the libraries' last digits)."""
+    to 0.2 px or 3 %, ``SHARE``: the run has no images and no random numbers, only the libraries'
+    last digits, which an ill-conditioned covariance carries into a bar)."""
     text = (ROOT / 'benchmarks/results/robotics_lenses.md').read_text().split('## Before')[0]
     rows = {line.split(' (')[0].strip('| '): line for line in text.splitlines() if line.startswith('| ') and ' x ' not in line
             and not line.startswith('| camera') and not line.startswith('|---')}
@@ -48,8 +60,7 @@ def test_the_results_file_is_this_code(runs):
         cells = rows[row['name']].split('|')[5:9]
         for cell, form in zip(cells, ('hfov', 'vfov', 'dfov', 'hfov+vfov+dfov')):
             error, bar, _ = (float(v) for v in cell.split(','))
-            assert error == pytest.approx(out[form][0], abs=0.2) and bar == pytest.approx(out[form][1], abs=0.2), \
-                (row['name'], form)
+            assert close(error, out[form][0]) and close(bar, out[form][1]), (row['name'], form, out[form])
     for form in ('hfov', 'vfov', 'dfov', 'hfov+vfov+dfov'):
         honest = sum(out[form][0] <= robotics_lenses.HONEST * out[form][1] for _, _, out in runs)
         assert re.search(rf'- {re.escape(form)}: honest on {honest} of {len(runs)} cameras', text), form
@@ -69,7 +80,7 @@ def test_the_readmes_robotics_sentence_is_this_code(runs):
 
 def test_the_report_writes_what_the_results_file_holds(runs):
     """``report`` of this run against the results file's first part, line by line: the camera, size,
-    model and FOV columns exactly, each number to 0.2 (error, bar) or 0.1 (x bar, the refit), the
+    model and FOV columns exactly, each number to 0.2 or 3 % (``SHARE``), the
     honest counts exactly."""
     written = robotics_lenses.report(runs, 'benchmarks/robotics_lenses.py --out benchmarks/results/robotics_lenses.md', 7.0)
     stored = (ROOT / 'benchmarks/results/robotics_lenses.md').read_text().split('The run is deterministic')[0]
@@ -83,4 +94,4 @@ def test_the_report_writes_what_the_results_file_holds(runs):
         a, b = tokens(new), tokens(old)
         assert len(a) == len(b) and a[0::2] == b[0::2], (new, old)
         for x, y in zip(a[1::2], b[1::2]):
-            assert abs(float(x) - float(y)) <= 0.2, (new, old)
+            assert close(float(x), float(y)), (new, old)
