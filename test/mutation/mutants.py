@@ -3073,4 +3073,28 @@ MUTANTS = [
         behaviour="the robotics benchmark's report states error over bar",
         tests=['test/product/test_robotics_lenses.py::test_the_report_writes_what_the_results_file_holds'],
     ),
+    dict(
+        id='refine-one-fov-confirmation-dropped',
+        file=f'{PKG}/core/estimation/refine.py',
+        old="    if zs_u.lens_shape_px is not None and not confirmed:\n",
+        new="    if zs_u.lens_shape_px is not None and False:\n",
+        behaviour='with one FOV a fit is kept only when held-out curves confirm it by 5 %',
+        tests=['test/core/estimation/test_refine.py::test_with_one_fov_a_fit_is_kept_only_when_held_out_curves_confirm_it'],
+    ),
+    dict(
+        id='refine-one-fov-confirmation-on-every-spec',
+        file=f'{PKG}/core/estimation/refine.py',
+        old="    if zs_u.lens_shape_px is not None and not confirmed:\n",
+        new="    if not confirmed:\n",
+        behaviour='with two FOVs or more the posterior test alone decides',
+        tests=['test/core/estimation/test_refine.py::test_a_held_out_gain_confirms_a_fit_the_posterior_leaves_in_doubt'],
+    ),
+    dict(
+        id='refine-one-fov-confirmation-on-the-wrong-specs',
+        file=f'{PKG}/core/estimation/refine.py',
+        old="    if zs_u.lens_shape_px is not None and not confirmed:\n",
+        new="    if zs_u.lens_shape_px is None and not confirmed:\n",
+        behaviour='the confirmation is asked of specs of one constraint, not of the others',
+        tests=['test/core/estimation/test_refine.py::test_with_one_fov_a_fit_is_kept_only_when_held_out_curves_confirm_it'] + ['test/core/estimation/test_refine.py::test_a_held_out_gain_confirms_a_fit_the_posterior_leaves_in_doubt'],
+    ),
 ]

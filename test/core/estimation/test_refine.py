@@ -357,6 +357,32 @@ def test_a_held_out_gain_confirms_a_fit_the_posterior_leaves_in_doubt(monkeypatc
         assert result.reason.startswith('the lines agree with zero-shot'), result.reason
 
 
+@pytest.mark.parametrize('gain, accepted', [(0.001, False), (0.049, False), (0.051, True), (0.3, True)])
+def test_with_one_fov_a_fit_is_kept_only_when_held_out_curves_confirm_it(monkeypatch, refined, gain, accepted):
+    """With one FOV the lens shape is the lines' alone and the zoom follows it through that FOV's
+    edge: lines that err together bend the shape and move the zoom where the posterior cannot see
+    it (a real 93-degree camera given hfov alone was accepted 59 px from its calibration with a
+    9 px error bar, its held-out curves 1.2 % better explained). There the fit is kept only when
+    the held-out curves are explained at least 5 % better, however sure the posterior is; zero-shot
+    is returned otherwise, with its own error bar."""
+    from zeroshot_calib_ros.core.estimation import refine as refine_module
+    real = refine_module.probability_other_is_better
+
+    def probability(*args, **kwargs):
+        _, distance, spread = real(*args, **kwargs)
+        return 1e-6, distance, spread
+    monkeypatch.setattr(refine_module, 'probability_other_is_better', probability)
+    monkeypatch.setattr(refine_module, '_held_out', lambda *args: (0.2, 0.2 * (1.0 - gain)))
+    curves, _ = refined
+    spec = CameraSpec(W, H, hfov=round(fields_of_view_through_axis(TRUTH)['hfov'], 1))
+    result = refine_camera(spec, curves)
+    assert result.accepted is accepted, result.reason
+    if not accepted:
+        assert result.reason.startswith('held-out lines are explained only'), result.reason
+        assert 'one FOV' in result.reason and result.camera is result.zero_shot_camera
+        assert result.uncertainty_px == result.zero_shot_uncertainty_px
+
+
 def test_pixel_rms_of_a_focal_variance_is_the_closed_form():
     """Variance s^2 on f alone: each pixel moves by theta_d s = (r / f) s, r its distance from
     the principal point, so the RMS over the grid is s sqrt(mean(r^2)) / f."""

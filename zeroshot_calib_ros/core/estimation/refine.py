@@ -41,6 +41,16 @@ before it, judged against zero-shot. The refined camera replaces the zero-shot o
   refined camera's uncertainty) says nothing about which is nearer. The posterior is the one
   with a systematic-error floor per curve (``SYSTEMATIC_PX``), without which a rectilinear
   lens's hundredths-of-a-pixel curvatures looked like evidence;
+- and, for a spec of one constraint (one FOV, or the image circle alone: the lens shape is then
+  the lens prior's guess, ``Uncertainty.lens_shape_px``), the held-out curves are explained at
+  least ``CONFIRMING_HELD_OUT_GAIN`` better than under zero-shot, whatever the posterior says. The
+  zoom follows the lines' shape through the one FOV's edge, so curves that err together (edges
+  of padded mats, a detector's bias, a lens the model misfits) bend the shape and move the zoom
+  where the posterior cannot see it: EuRoC's 93-degree camera given hfov alone was accepted 59
+  px (at 1920) from its calibration with an error bar of 9 px, held-out curves 1.2 % better
+  explained (dfov alone: 65 px, bar 10 px, 3.5 %); the real cameras whose one-FOV fits were
+  nearer the truth had gains of 11 to 68 % (``benchmarks/results/real_photos.md``). With two
+  FOVs or more the spec holds the shape and the posterior test alone decides;
 - and every image (with at least ``MIN_IMAGE_LINES`` curves, of two or more) has its lines
   straightened by the refined camera at most ``MAX_IMAGE_WORSE`` times worse than by zero-shot
   (``_image_straightened_worse``): the images of two cameras of one spec meet in a camera between
@@ -550,6 +560,12 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
                       f'refined camera is {distance:.3g} px RMS from it with an uncertainty of {spread:.3g} px, '
                       f'so zero-shot may be as good (probability {100 * p_better:.0f} % that it is better by '
                       f'{margin:.2g} px); zero-shot kept')
+    if zs_u.lens_shape_px is not None and not confirmed:
+        return refuse(f'held-out lines are explained only {100 * (1.0 - after / before):.1f} % better than by '
+                      f'zero-shot ({after:.3g} px RMS against {before:.3g} px): with one FOV (or the image circle '
+                      f'alone) the lens shape is the lines\' alone and the zoom follows it through the FOV\'s edge, '
+                      f'so the fit is kept only when held-out lines confirm it by at least '
+                      f'{100 * CONFIRMING_HELD_OUT_GAIN:.0f} %; zero-shot kept')
     # every image's lines are straightened by the refined camera: the checks above judge the images
     # together, where the images of two cameras (a stereo pair's, two units of one model) meet in a
     # camera between theirs that explains held-out lines better than zero-shot
