@@ -205,6 +205,21 @@ def test_images_without_lines_give_the_zero_shot_camera_and_the_reason(capsys, t
         assert record[key] == solved[key], key
 
 
+def test_a_refused_refinement_of_one_fov_warns_of_the_lens_shape_assumed_as_solve_does(capsys, tmp_path):
+    """One FOV and images that refine nothing: the camera returned is zero-shot's, whose lens shape is
+    assumed from real lenses of that FOV; refine warns of it on stderr and in --json as solve does
+    (a user given only the refusal had no word that the shape was a guess)."""
+    path = tmp_path / 'black.png'
+    cv2.imwrite(str(path), np.zeros((360, 640), np.uint8))
+    status, out, err = run(capsys, str(path), '--hfov', '172', '--json')
+    assert status == NOT_REFINED, err
+    assert main(['solve', '--width', '640', '--height', '360', '--hfov', '172', '--json']) == 0
+    solved = json.loads(capsys.readouterr()[0])
+    assumption = solved['assumption']
+    assert assumption and assumption.startswith('one FOV (hfov 172 deg)') and assumption in solved['warning']
+    assert assumption in json.loads(out)['warning'] and f'warning: {assumption}' in err, err
+
+
 def test_images_of_two_cameras_are_not_adopted(views, capsys, tmp_path):
     other = KannalaBrandtCamera(260.0, 260.0, 300.0, 190.0, 640, 360, np.array([-0.05, 0.01, 0.0, 0.0]))
     paths = list(views[:2])

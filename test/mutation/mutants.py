@@ -2964,8 +2964,8 @@ MUTANTS = [
     dict(
         id='refine-confirmed-gain-ignored',
         file=f'{PKG}/core/estimation/refine.py',
-        old="    if p_better > (MAX_ZERO_SHOT_BETTER_CONFIRMED if confirmed else MAX_ZERO_SHOT_BETTER):\n",
-        new="    if p_better > MAX_ZERO_SHOT_BETTER_CONFIRMED:\n",
+        old="    allowed = MAX_ZERO_SHOT_BETTER_CONFIRMED if confirmed else MAX_ZERO_SHOT_BETTER\n",
+        new="    allowed = MAX_ZERO_SHOT_BETTER_CONFIRMED\n",
         behaviour='a posterior in doubt (1-5 %) is accepted only when held-out curves confirm the gain',
         tests=['test/core/estimation/test_refine.py::test_a_held_out_gain_confirms_a_fit_the_posterior_leaves_in_doubt'],
     ),

@@ -12,6 +12,7 @@ import sys
 import cv2
 import numpy as np
 
+from ..core.estimation.uncertainty import error_bar_text
 from ..core.file_input import InputFileError, read_image
 from ..core.lens.fitting import DISTORTION_FITS, FIT_WARNING_PX
 from ..core.ros_formats.calibration_file import CalibrationFileError, CameraCalibration, spec_record, stand_in_note
@@ -78,10 +79,8 @@ def uncertainty_line(summary, fov_tolerance):
     value = summary['uncertainty_px']
     if value is None:
         return f"error bar - ({summary.get('uncertainty') or 'not determined'})"
-    shapes = summary.get('uncertainty_lens_shape_px')
-    shapes = '' if shapes is None else f' and the spread of real lens shapes of that FOV, {shapes:.3g} px of it'
-    return (f"error bar {value:.2f} px (RMS over the {summary.get('uncertainty_over', 'image')} of the 1-sigma "
-            f'pixel error, FOVs +- {fov_tolerance:g} deg{shapes})')
+    return error_bar_text(value, fov_tolerance, summary.get('uncertainty_over', 'image'),
+                          summary.get('uncertainty_lens_shape_px'))
 
 
 def error_bar_keys(uncertainty, over_circle: bool) -> dict:

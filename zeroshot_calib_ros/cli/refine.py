@@ -18,7 +18,7 @@ from ..core.zeroshot.spec import check_fov
 from ..core.zeroshot.solver import solve_zero_shot
 from .arguments import (EXIT_NOT_ADOPTED, EXIT_STATUSES, IMAGE_BUDGET, REPORT_HELP, CliError, add_circle_arguments,
                         add_fov_tolerance_argument, add_progress_argument, number)
-from .output import (check_output_image, error_bar_keys, fit_warnings, kannala_brandt_record, not_adopted,
+from .output import (assumption_warnings, check_output_image, error_bar_keys, fit_warnings, kannala_brandt_record, not_adopted,
                      print_warnings, progress_line, read_input_image, save_calibration, uncertainty_line, write_png,
                      write_report)
 
@@ -140,6 +140,8 @@ def run(args):
     # the spec's FOVs against the zero-shot camera, and against the image circle seen
     warnings = list(solution.warnings) + circle_warnings + list(result.spec_warnings)
     warnings += [] if result.accepted else fit_warnings(solution, calibration, DISTORTION_FITS['equidistant'](solution.camera))
+    # zero-shot returned: its lens shape is still the one assumed from the spec (one FOV), as solve warns
+    warnings += [] if result.accepted else assumption_warnings(solution)
     summary['uncertainty_px'] = result.uncertainty_px if result.accepted else result.zero_shot_uncertainty_px
     # every key of `solve --json` whatever the verdict (a client reads them without asking which):
     # the error bar's how, its lens-shape part and what it is over, of the camera returned; no

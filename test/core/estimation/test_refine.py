@@ -354,7 +354,11 @@ def test_a_held_out_gain_confirms_a_fit_the_posterior_leaves_in_doubt(monkeypatc
     result = refine_camera(spec_of(TRUTH), curves)
     assert result.accepted is accepted, result.reason
     if not accepted:
-        assert result.reason.startswith('the lines agree with zero-shot'), result.reason
+        assert result.reason.startswith('the lines do not rule out zero-shot'), result.reason
+        # the chance to two digits and what is allowed: "1 %" against a limit of 1 % read as a contradiction
+        allowed = 5 if gain >= 0.05 else 1
+        assert f'(probability {100 * p_better:.2g} % that it is better by' in result.reason, result.reason
+        assert f', at most {allowed} % allowed); zero-shot kept' in result.reason, result.reason
 
 
 @pytest.mark.parametrize('gain, accepted', [(0.001, False), (0.049, False), (0.051, True), (0.3, True)])
@@ -380,6 +384,8 @@ def test_with_one_fov_a_fit_is_kept_only_when_held_out_curves_confirm_it(monkeyp
     if not accepted:
         assert result.reason.startswith('held-out lines are explained only'), result.reason
         assert 'one FOV' in result.reason and result.camera is result.zero_shot_camera
+        assert result.reason.endswith('give a second FOV (vfov or dfov) from the spec sheet, or images whose '
+                                      'straight edges reach further across the image'), result.reason
         assert result.uncertainty_px == result.zero_shot_uncertainty_px
 
 
@@ -664,7 +670,7 @@ def test_lines_that_agree_with_zero_shot_keep_it_with_its_error_bar():
         assert np.allclose(result.camera.K, zs.K) and np.allclose(result.camera.D, zs.D)
         assert result.uncertainty_px == pytest.approx(zero_shot_uncertainty(spec).rms_px)
         reasons.append(result.reason.split(':')[0])
-    assert 'the lines agree with zero-shot' in reasons and 'held-out lines are not explained better' in reasons
+    assert 'the lines do not rule out zero-shot' in reasons and 'held-out lines are not explained better' in reasons
 
 
 
@@ -1292,6 +1298,25 @@ def test_a_fov_is_past_the_circle_where_its_own_edges_are(circle, fovs, past):
     cx, cy, radius, sigma = circle
     spec = CameraSpec(640, 480, **fovs)
     assert fovs_past_image_circle(spec, ImageCircle(cx, cy, radius, 0.3, sigma), 640, 480) == past
+
+
+@pytest.mark.parametrize('cx, cy, radius, fovs, words', [
+    (320.0, 240.0, 300.0, {'hfov': 185.0}, 'hfov 185 (to the left and right edges)'),
+    (350.0, 240.0, 320.0, {'hfov': 185.0}, 'hfov 185 (to the left edge)'),     # x = 0 is 350 px out, W 290
+    (290.0, 240.0, 320.0, {'hfov': 185.0}, 'hfov 185 (to the right edge)'),
+    (320.0, 260.0, 255.0, {'vfov': 185.0}, 'vfov 185 (to the top edge)'),
+    (320.0, 220.0, 255.0, {'vfov': 185.0}, 'vfov 185 (to the bottom edge)'),
+    (320.0, 260.0, 395.0, {'dfov': 230.0}, 'dfov 230 (to the top-left corner)'),
+    (320.0, 220.0, 395.0, {'dfov': 230.0}, 'dfov 230 (to the bottom-right corner)'),
+    (320.0, 240.0, 380.0, {'dfov': 230.0}, 'dfov 230 (to the corners)'),
+])
+def test_the_dark_fov_warning_names_the_edges_that_are_past_the_circle(cx, cy, radius, fovs, words):
+    """A circle seen off the image's centre can end before one edge and reach past the other (a real
+    1032 x 778 fisheye: its circle, centred at x 546.7, passes the right edge): the warning names the
+    edge that is dark, not both."""
+    from zeroshot_calib_ros.core.estimation.refine import dark_fov_warning
+    warning = dark_fov_warning(CameraSpec(640, 480, **fovs), ImageCircle(cx, cy, radius, 0.3, 0.5), 640, 480)
+    assert warning is not None and warning.startswith(words + ':'), warning
 
 
 def test_the_dark_fov_warning_speaks_of_one_fov_or_several():

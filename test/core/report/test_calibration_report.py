@@ -367,3 +367,25 @@ def test_the_contact_sheets_legend_is_never_cut_at_its_edge(width):
     # all three entries are drawn: their strokes' colours are in the header
     for colour in (canvas.CURVE_USED, canvas.CURVE_REJECTED, canvas.CURVE_STATIC):
         assert np.all(header == np.array(colour, np.uint8), axis=2).sum() > 20, colour
+
+
+def test_the_title_states_the_error_bar_as_the_cli_does_with_its_lens_shape_part():
+    """The report's title line gives the error bar in the CLI's words (``error_bar_text``): after the
+    best rotation, and for one FOV the spread of real lens shapes that is most of it (the title once
+    read "FOVs +- 1 deg" alone for a bar 18.6 of whose 19.4 px were the lens shapes')."""
+    from zeroshot_calib_ros.core.estimation.uncertainty import error_bar_text, zero_shot_uncertainty
+    from zeroshot_calib_ros.core.report.calibration_report import ReportData, _title_lines
+    from zeroshot_calib_ros.core.zeroshot.solver import solve_zero_shot
+    from zeroshot_calib_ros.core.zeroshot.spec import CameraSpec
+    spec = CameraSpec(752, 480, hfov=93.1)
+    solution = solve_zero_shot(spec)
+    u = zero_shot_uncertainty(spec, solution=solution)
+    assert u.lens_shape_px is not None and u.lens_shape_px > 0.5 * u.rms_px
+    data = ReportData('solve', solution.camera, 'equidistant', None, '', spec, 1.0, u, u.rms_px, u.reason)
+    text = ' '.join(line[0] for line in _title_lines(data, 1600))
+    assert error_bar_text(u.rms_px, 1.0, 'image', u.lens_shape_px, '.3g') in text, text
+    assert 'after the best rotation' in text and f'lens shapes of that FOV, {u.lens_shape_px:.3g} px of it' in text
+    # images at twice the spec's size: the bar and its lens-shape part both in the images' pixels
+    doubled = ReportData('refine', solution.camera, 'equidistant', False, 'x', spec, 1.0, u, 2 * u.rms_px, u.reason)
+    text = ' '.join(line[0] for line in _title_lines(doubled, 1600))
+    assert f'lens shapes of that FOV, {2 * u.lens_shape_px:.3g} px of it' in text, text

@@ -209,6 +209,10 @@ def test_solve_says_what_it_assumed(capsys):
     assert 'give a second FOV or refine from images' in assumed
     assert any('spread of real lens shapes of that FOV' in line for line in out.splitlines()
                if line.startswith('error bar'))
+    # what the number is: after the best rotation (a principal point error is mostly one; a user
+    # comparing raw pixels of a camera whose principal point is off saw several times the bar)
+    assert any('of the 1-sigma pixel error after the best rotation, FOVs +- 1 deg' in line
+               for line in out.splitlines() if line.startswith('error bar'))
     assert err == ['zeroshot-calib: warning: ' + assumed.split(None, 1)[1]]
     status, out, err = run_main(['solve', '--width', '848', '--height', '800', '--dfov', '163', '--json'], capsys)
     record = json.loads(out)

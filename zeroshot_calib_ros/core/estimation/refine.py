@@ -343,18 +343,31 @@ def circle_term(spec: CameraSpec, circle, width: int, fov_tolerance_deg: float, 
 DARK_EDGE_SIGMAS = 3.0
 """A FOV's edge pixel lies past the image circle seen when it is farther from the circle's centre
 than its radius by more than this many sigmas of the radius (and at least 1 px)."""
-FOV_EDGES = {'hfov': 'the left and right edges', 'vfov': 'the top and bottom edges', 'dfov': 'the corners'}
-"""Where each spec FOV is measured to (``lens.models.fov_edge_pixels``), in words."""
+FOV_EDGES = {'hfov': ('the left edge', 'the right edge', 'the left and right edges'),
+             'vfov': ('the top edge', 'the bottom edge', 'the top and bottom edges'),
+             'dfov': ('the top-left corner', 'the bottom-right corner', 'the corners')}
+"""Where each spec FOV is measured to (``lens.models.fov_edge_pixels``), in words: its first edge,
+its second, both."""
+
+
+def _edges_past_image_circle(spec: CameraSpec, circle, width: int, height: int) -> Dict[str, str]:
+    """{FOV name: its edges outside the image circle ``circle``, in words} (``fovs_past_image_circle``)."""
+    margin = max(1.0, DARK_EDGE_SIGMAS * circle.radius_uncertainty_px)
+    edges = dict(zip(FOV_NAMES, fov_edge_pixels(width, height, circle.cx, circle.cy)))
+    past = {}
+    for name in spec.given():
+        out = np.hypot(*(edges[name] - (circle.cx, circle.cy)).T) > circle.radius + margin
+        if out.any():
+            first, second, both = FOV_EDGES[name]
+            past[name] = both if out.all() else (first if out[0] else second)
+    return past
 
 
 def fovs_past_image_circle(spec: CameraSpec, circle, width: int, height: int) -> List[str]:
     """The spec's FOVs (hfov, vfov, dfov) with an edge pixel outside the image circle ``circle``
     measured in images of ``width`` x ``height`` (``core.lines.image_region.ImageCircle``; its
     centre is the principal point): pixels that no light reaches, where nothing is imaged."""
-    margin = max(1.0, DARK_EDGE_SIGMAS * circle.radius_uncertainty_px)
-    edges = dict(zip(FOV_NAMES, fov_edge_pixels(width, height, circle.cx, circle.cy)))
-    return [name for name in spec.given()
-            if np.any(np.hypot(*(edges[name] - (circle.cx, circle.cy)).T) > circle.radius + margin)]
+    return list(_edges_past_image_circle(spec, circle, width, height))
 
 
 def dark_fov_warning(spec: CameraSpec, circle, width: int, height: int) -> Optional[str]:
@@ -373,11 +386,11 @@ def dark_fov_warning(spec: CameraSpec, circle, width: int, height: int) -> Optio
     at 4.2 times (benchmarks/real_photos.py --spec dfov; the CLI)."""
     if circle is None:
         return None
-    past = fovs_past_image_circle(spec, circle, width, height)
+    past = _edges_past_image_circle(spec, circle, width, height)
     if not past:
         return None
     given = spec.given()
-    stated = ', '.join(f'{name} {given[name]:g} (to {FOV_EDGES[name]})' for name in past)
+    stated = ', '.join(f'{name} {given[name]:g} (to {edges})' for name, edges in past.items())
     advice = ('the FOV across the image circle (circle_fov) states the scale where light is'
               if getattr(spec, 'circle_fov', None) is not None else
               "a circular fisheye's spec sheet usually states its FOV across the image circle: give that as circle_fov "
@@ -555,17 +568,18 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
         circle_radius=None if seen is None else seen[0], circle_centre=None if seen is None else seen[1])
     result.zero_shot_better_probability, result.zero_shot_distance_px = p_better, distance
     confirmed = after <= (1.0 - CONFIRMING_HELD_OUT_GAIN) * before  # the held-out lines see the gain too
-    if p_better > (MAX_ZERO_SHOT_BETTER_CONFIRMED if confirmed else MAX_ZERO_SHOT_BETTER):
-        return refuse(f'the lines agree with zero-shot: beside the zoom (which only the FOVs fix, for both) the '
+    allowed = MAX_ZERO_SHOT_BETTER_CONFIRMED if confirmed else MAX_ZERO_SHOT_BETTER
+    if p_better > allowed:
+        return refuse(f'the lines do not rule out zero-shot: beside the zoom (which only the FOVs fix, for both) the '
                       f'refined camera is {distance:.3g} px RMS from it with an uncertainty of {spread:.3g} px, '
-                      f'so zero-shot may be as good (probability {100 * p_better:.0f} % that it is better by '
-                      f'{margin:.2g} px); zero-shot kept')
+                      f'so zero-shot may be as good (probability {100 * p_better:.2g} % that it is better by '
+                      f'{margin:.2g} px, at most {100 * allowed:g} % allowed); zero-shot kept')
     if zs_u.lens_shape_px is not None and not confirmed:
         return refuse(f'held-out lines are explained only {100 * (1.0 - after / before):.1f} % better than by '
-                      f'zero-shot ({after:.3g} px RMS against {before:.3g} px): with one FOV (or the image circle '
-                      f'alone) the lens shape is the lines\' alone and the zoom follows it through the FOV\'s edge, '
-                      f'so the fit is kept only when held-out lines confirm it by at least '
-                      f'{100 * CONFIRMING_HELD_OUT_GAIN:.0f} %; zero-shot kept')
+                      f'zero-shot ({after:.3f} px RMS against {before:.3f} px), and with one FOV (or the image circle '
+                      f'alone) the focal length rests on the lens shape the lines show, so the fit needs them at least '
+                      f'{100 * CONFIRMING_HELD_OUT_GAIN:.0f} % better; zero-shot kept: give a second FOV (vfov or '
+                      f'dfov) from the spec sheet, or images whose straight edges reach further across the image')
     # every image's lines are straightened by the refined camera: the checks above judge the images
     # together, where the images of two cameras (a stereo pair's, two units of one model) meet in a
     # camera between theirs that explains held-out lines better than zero-shot

@@ -104,6 +104,17 @@ class Uncertainty:
         return math.sqrt(max(self.rms_px ** 2 - self.lens_shape_px ** 2, 0.0))
 
 
+def error_bar_text(value_px: float, fov_tolerance_deg: float, over: str = 'image',
+                   lens_shape_px: Optional[float] = None, digits: str = '.2f') -> str:
+    """What an error bar is, in one line for users (the CLI's text and the report's title): the RMS
+    over ``over`` ('image' or 'image circle') of the 1-sigma pixel error after the best rotation (a
+    principal point error is mostly such a rotation: the raw pixel error can be larger), with the
+    FOV tolerance and, for one FOV, the lens-shape spread's part ``lens_shape_px``."""
+    shapes = '' if lens_shape_px is None else f' and the spread of real lens shapes of that FOV, {lens_shape_px:.3g} px of it'
+    return (f'error bar {value_px:{digits}} px (RMS over the {over} of the 1-sigma pixel error after the best '
+            f'rotation, FOVs +- {fov_tolerance_deg:g} deg{shapes})')
+
+
 def pixel_grid(width: int, height: int, grid=GRID, circle_radius: Optional[float] = None,
                circle_centre: Optional[Tuple[float, float]] = None) -> np.ndarray:
     """grid[0] x grid[1] pixels from (0, 0) to (W, H) inclusive (the lens benchmark's grid);

@@ -27,7 +27,7 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 import cv2
 import numpy as np
 
-from ..estimation.uncertainty import Uncertainty, uncertainty_map
+from ..estimation.uncertainty import Uncertainty, error_bar_text, uncertainty_map
 from ..ros_formats.rectify import Rectifier, new_camera_matrix
 from .canvas import (BLUE, GREEN, INK, MUTED, ORANGE, PAPER, RED, Rect, as_bgr, axes, colour_bar, fit_size,
                      heat_map, legend, legend_column, nice_ceiling, panel, paste_fitted, polyline, put_label,
@@ -206,6 +206,17 @@ def verdict_text(accepted: Optional[bool], reason: str, command: str = '') -> Tu
     return reason or 'nothing to accept or refuse: the camera of the spec sheet', INK
 
 
+def _error_bar(data: ReportData) -> str:
+    """The title's error bar, as the CLI states it (``uncertainty.error_bar_text``): over the image
+    circle when it is, with the lens-shape spread's part for one FOV (at the size it is stated at)."""
+    u = data.uncertainty
+    over = 'image circle' if u is not None and u.circle_radius is not None else 'image'
+    shapes = None
+    if u is not None and u.lens_shape_px is not None and u.rms_px:
+        shapes = u.lens_shape_px * data.uncertainty_px / u.rms_px
+    return error_bar_text(data.uncertainty_px, data.fov_tolerance_deg, over, shapes, '.3g')
+
+
 def _title_lines(data: ReportData, width: int):
     camera = data.camera
     f = float(camera.K[0, 0])
@@ -214,8 +225,7 @@ def _title_lines(data: ReportData, width: int):
     head = (f'zeroshot-calib {data.command}: {data.camera_name} {camera.width}x{camera.height}, {data.model}, '
             f'{focal}, principal point ({camera.cx:.1f}, {camera.cy:.1f})')
     verdict, colour = verdict_text(data.accepted, data.reason, data.command)
-    error = (f'error bar {data.uncertainty_px:.3g} px (RMS over the image of the 1-sigma pixel error, FOVs '
-             f'+- {data.fov_tolerance_deg:g} deg)' if data.uncertainty_px is not None else
+    error = (_error_bar(data) if data.uncertainty_px is not None else
              f'error bar: none ({data.uncertainty_reason or "not estimated"})')
     lines = [(head, 0.62, INK, 2, None), (f'{_fov_text(data.spec)}; {error}', 0.5, MUTED, 1, 2),
              (verdict, 0.55, colour, 1, 3)]
@@ -303,7 +313,7 @@ def _lens_curve(canvas, body: Rect, data: ReportData):
         put_label(canvas, label, int(u) + (10 if right else -10), int(v) + (7 if right else -22), 0.42, ORANGE,
                   'left' if right else 'right')
     if marks:
-        entries.append((f'spec FOV +- {data.fov_tolerance_deg / 2:g} deg', ORANGE))
+        entries.append((f'spec FOV edge, +- {data.fov_tolerance_deg / 2:g} deg off-axis', ORANGE))
     # the legend in the lower right corner, which a rising curve leaves empty
     legend_column(canvas, ax.area.x + ax.area.w - 6, ax.area.y + ax.area.h - 4, entries, 0.4)
 
