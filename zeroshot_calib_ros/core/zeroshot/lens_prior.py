@@ -100,7 +100,7 @@ class LensShape:
             source = f'the {self.lenses:,.0f} real lenses of about that FOV among {self.total_lenses:,} calibrations'
         else:
             source = f'the nearest real lenses (few of {self.total_lenses:,} calibrations have that FOV)'
-        return (f'one FOV ({self.fov_name} {self.fov_deg:g} deg): lens shape from {source}, law a = {self.a:.2f}; '
+        return (f'one FOV ({self.fov_name} {self.fov_deg:g} deg): lens shape from {source}, law a = {self.a:.2f} (0: a pinhole, 1: the pure {self.law} law); '
                 'give a second FOV or refine from images to pin it')
 
 
