@@ -417,6 +417,18 @@ def test_the_record_of_a_refined_camera_keeps_the_image_circle_of_the_spec():
     assert first == 'camera    748 x 480 px, circle_diameter 564.5 px, circle_fov 178.7 deg', first
 
 
+def test_a_fov_is_marked_when_either_of_its_edges_is_past_the_circle_about_the_principal_point():
+    """A refined camera's principal point is off the image's centre, and so is its image circle: a
+    FOV is past the circle when either of its edges is (here the right one, 388 px out against a
+    375 px radius; the left is inside at 360), measured from the principal point, not the image's
+    centre (where both would be inside at 374)."""
+    from zeroshot_calib_ros.core.ros_formats.calibration_file import _fovs_past_circle
+    summary = {'spec': {'circle_diameter': 750.0}, 'cx': 360.0, 'cy': 240.0, 'width': 748, 'height': 480}
+    assert _fovs_past_circle(summary) == {'hfov', 'dfov'}
+    assert _fovs_past_circle(dict(summary, cx=374.0)) == {'dfov'}
+    assert _fovs_past_circle(dict(summary, spec={})) == set()
+
+
 def test_fovs_printed_across_the_dark_past_the_image_circle_are_marked(capsys):
     """A circular fisheye's predicted hfov and dfov run past its image circle into the dark corners,
     where the lens model only continues (a 560 px circle in a 748 x 480 image: h 250 degrees):

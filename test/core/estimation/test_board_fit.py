@@ -94,6 +94,37 @@ def test_corner_term_eliminates_the_poses_to_the_true_ones():
     assert at_best < 0.5 * at_true
 
 
+def test_the_pose_solve_halves_steps_that_overshoot_and_never_raises_a_views_cost(monkeypatch):
+    """Started far from the poses (a warm start from another camera: each board turned 0.6 rad and
+    twice as far), the pose solve's full Gauss-Newton steps overshoot; halved until a view's cost no
+    longer rises, they bring every view to its true pose, and no view's cost ever rises. Views that
+    find a better step stop halving while the others go on (the halving evaluates only those)."""
+    corners, poses = board_views(TRUTH, 4, seed=3, noise=0.0)
+    far = poses.copy()
+    far[:, :3] += np.array([0.6, -0.45, 0.3])
+    far[:, 3:] *= 2.0
+    term = CornerTerm(BOARD.object_points(), corners.corners, poses=far)
+    costs = []
+    real = CornerTerm._penalised_rows
+
+    def spy(self, camera, trial, idx):
+        rows = real(self, camera, trial, idx)
+        costs.append((np.asarray(idx).copy(), np.sum(rows * rows, axis=1)))
+        return rows
+    monkeypatch.setattr(CornerTerm, '_penalised_rows', spy)
+    solved = term.solve_poses(TRUTH)
+    np.testing.assert_allclose(solved, poses, atol=1e-7)
+    # the cost each view holds after every round, from the trials the solve kept: never rising
+    held = dict(zip(costs[0][0].tolist(), costs[0][1].tolist()))
+    for idx, cost in costs[1:]:
+        for view, c in zip(idx.tolist(), cost.tolist()):
+            if c <= held[view] * (1 + 1e-12) + 1e-300:
+                held[view] = c
+    assert max(held.values()) < 1e-12
+    halved = [idx for idx, _ in costs[1:] if 0 < len(idx) < term.n]
+    assert halved, 'no round halved some views but not others: the start did not overshoot'
+
+
 def test_map_with_the_spec_beats_the_start_only_fit_on_a_poor_single_view(poor_view):
     """One small central view: FC started from zero-shot ('fc+zs', the spec only as a start)
     extrapolates its focal length and distortion to the rest of the image; the MAP with the

@@ -382,7 +382,7 @@ def test_with_one_fov_a_fit_is_kept_only_when_held_out_curves_confirm_it(monkeyp
     result = refine_camera(spec, curves)
     assert result.accepted is accepted, result.reason
     if not accepted:
-        assert result.reason.startswith('held-out lines are explained only'), result.reason
+        assert result.reason.startswith(f'held-out lines are explained only {100 * gain:.1f} % better'), result.reason
         assert 'one FOV' in result.reason and result.camera is result.zero_shot_camera
         assert result.reason.endswith('give a second FOV (vfov or dfov) from the spec sheet, or images whose '
                                       'straight edges reach further across the image'), result.reason
@@ -1259,6 +1259,16 @@ def test_a_camera_without_rays_for_pixels_zero_shot_images_is_named():
     assert _pixels_without_rays(turned, turned, 752, 480) is None
     # inside a circle of 300 px about the principal point every pixel has a ray
     assert _pixels_without_rays(turned, reference, 752, 480, (300.0, (403.2, 234.0))) is None
+
+
+def test_a_lens_curve_turning_back_past_90_degrees_is_said_to_turn_back_there():
+    """A fisheye fit whose curve turns back at 120 degrees off-axis, short of the corners a 190-degree
+    zero-shot images: the reason names that angle, not the model's end at 180 degrees."""
+    from zeroshot_calib_ros.core.estimation.refine import _pixels_without_rays
+    turned = KannalaBrandtCamera(250.0, 250.0, 376.0, 240.0, 752, 480, [-0.076, 0.0, 0.0, 0.0])
+    assert math.degrees(turned.theta_max) == pytest.approx(120.0, abs=0.5)
+    reason = _pixels_without_rays(turned, zero_shot_camera(CameraSpec(752, 480, hfov=190.0), 752, 480), 752, 480)
+    assert reason is not None and '(its lens curve turns back at 120 degrees off-axis)' in reason, reason
 
 
 def test_refine_refuses_a_fit_whose_lens_curve_turns_back_inside_the_image(monkeypatch):

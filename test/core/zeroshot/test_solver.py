@@ -205,6 +205,12 @@ def test_invalid_spec_names_field_value_and_range(kwargs, field, allowed):
     assert allowed in str(err.value)
 
 
+def test_the_smallest_fov_the_message_allows_is_accepted():
+    """"at least 0.01": 0.01 degrees itself is a spec (the boundary the refusal states)."""
+    spec = CameraSpec(1280, 720, hfov=0.01)
+    assert spec.hfov == 0.01
+
+
 def test_unknown_projection_is_refused():
     with pytest.raises(SpecError, match='projection = .fisheye.* allowed: auto, equidistant'):
         solve_zero_shot(CameraSpec(1280, 720, 90, 60), projection='fisheye')
