@@ -270,6 +270,11 @@ def profile_spec(gt, fovs, args) -> CameraSpec:
     """The spec of a (scaled) profile: its FOVs (rounded with ``--fov-round``), and with
     ``--nuisances`` the truth's FOV across the image circle (raises SpecError)."""
     given = {k: (round(v / args.fov_round) * args.fov_round if args.fov_round else v) for k, v in fovs.items()}
+    form = getattr(args, 'spec', 'hvd')
+    if form != 'hvd':  # one FOV alone, as most spec sheets print
+        if not math.isfinite(given.get(form, math.nan)):
+            raise SpecError(form, given.get(form), 'a finite FOV', 'the profile has none', missing=form not in given)
+        given = {form: given[form]}
     if args.evidence == 'images' and args.nuisances != 'none':
         # a circular fisheye's spec sheet states the FOV across its image circle: the truth's
         radius = NUISANCE_CIRCLE * min(gt.width, gt.height)
@@ -400,7 +405,7 @@ def report(rows: List[Row], args, seconds: float, command: str, table: bool = Tr
         f'`{command}` ({seconds:.0f} s).',
         '',
         f'{len(rows)} wide (hfov >= {lp.WIDE_HFOV:g}) square-pixel (|fx - fy| / fx < {100 * SQUARE_PIXELS:g} %) '
-        f'profiles of `../shared/data/lens_profiles_dev.csv`, taken evenly through the file; spec h + v + d, '
+        f'profiles of `../shared/data/lens_profiles_dev.csv`, taken evenly through the file; spec ' + {'hvd': 'h + v + d', 'hfov': 'hfov alone', 'dfov': 'dfov alone'}[getattr(args, 'spec', 'hvd')] + ', '
         f'{fov}; FOV tolerance {args.fov_tolerance:g} degree(s); {args.views} views each; '
         + (f'noise {args.noise:g} px, {args.outliers} curved outlier arcs per view.' if args.evidence == 'ideal'
            else f'scene `{args.scene}` rendered by test/scenes.py at {args.image_width} px wide, curves from '
@@ -558,6 +563,9 @@ def main(argv=None) -> int:
     parser.add_argument('--views', type=int, default=4)
     parser.add_argument('--noise', type=float, default=0.3, help='ideal evidence: px per coordinate')
     parser.add_argument('--outliers', type=int, default=2, help='ideal evidence: curved arcs per view')
+    parser.add_argument('--spec', choices=('hvd', 'hfov', 'dfov'), default='hvd',
+                        help='the FOVs the spec gives: hfov + vfov + dfov, or one of them alone (as most fisheye '
+                             'spec sheets print one)')
     parser.add_argument('--fov-round', type=float, default=0.0,
                         help='round the spec FOVs to this many degrees (0: exact)')
     parser.add_argument('--fov-tolerance', type=float, default=1.0)

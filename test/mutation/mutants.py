@@ -3161,4 +3161,12 @@ MUTANTS = [
         behaviour='the two parts of the fuzz cases are drawn from seeds of their own',
         tests=['test/test_fuzz_settings.py::test_the_two_parts_draw_different_cases_each_the_same_every_run'],
     ),
+    dict(
+        id='refine-one-fov-bar-with-the-fits-prior',
+        file=f'{PKG}/core/estimation/refine.py',
+        old="        fit, seen, ONE_CONSTRAINT_SHAPE_SPREAD if zs_u.lens_shape_px is not None else None)\n",
+        new="        fit, seen, None)\n",
+        behaviour="one FOV's error bar counts the guessed shape at 10 %, not the fit's 2 %",
+        tests=['test/core/estimation/test_refine.py::test_with_one_fov_and_lines_short_of_its_edges_the_error_bar_counts_the_guessed_shape'],
+    ),
 ]

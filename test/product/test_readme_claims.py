@@ -1282,3 +1282,19 @@ def test_one_fov_real_photo_figures_are_the_results_file():
                 assert f'{ratio:.1f} times' in text, (form, r[0], ratio)
     (bh, nh), (bd, nd) = counts
     assert f'closer than zero-shot by at least 10 % on {bh} of {nh} and {bd} of {nd} cameras and worse on none' in text
+
+
+def test_one_fov_rendered_figures_are_the_line_benchmarks():
+    """accuracy.md "Refining from ordinary images": the 60 rendered lenses given one FOV alone, each
+    figure quoted (returned and zero-shot medians, accepted counts) is the table of the "One FOV
+    alone" section of benchmarks/results/line_refinement.md, where none is accepted worse."""
+    text = ' '.join(doc_section('docs/accuracy.md', 'Refining from ordinary images').split())
+    results = (RESULTS / 'line_refinement.md').read_text().split('\n## One FOV alone')[1].split('\n## ')[0]
+    rows = {r[0]: r for r in markdown_rows(results) if r and r[0].startswith(('hfov alone', 'dfov alone'))}
+    assert set(rows) == {'hfov alone (`--spec hfov`)', 'dfov alone (`--spec dfov`)'}, rows
+    (h_zs, h_out, h_acc), (d_zs, d_out, d_acc) = (
+        (r[1].split(' / ')[0], r[2].strip('*').split(' / ')[0], r[4].split(' / ')[0])
+        for r in (rows['hfov alone (`--spec hfov`)'], rows['dfov alone (`--spec dfov`)']))
+    assert all(r[5] == '0' for r in rows.values())
+    assert (f"refine returns {h_out} px (median) against zero-shot's {h_zs} from hfov, {d_out} against {d_zs} "
+            f"from dfov, accepting {h_acc} and {d_acc} of 60, none worse than zero-shot by more than 0.3 px") in text

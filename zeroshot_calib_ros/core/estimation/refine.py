@@ -69,6 +69,7 @@ periphery) and fits again.
 """
 from __future__ import annotations
 
+import copy
 import math
 from contextlib import nullcontext
 from dataclasses import dataclass, field
@@ -145,6 +146,17 @@ INITIAL_SIGMA_PX = 0.5
 REFINE_SHAPE_SIGMA = 4 * SHAPE_SIGMA
 """The refinement's shape prior: four times the population's (weak beside the lines; it only
 holds the shape where no line reaches)."""
+ONE_CONSTRAINT_SHAPE_SPREAD = 0.1
+"""For a spec of one constraint (one FOV, or the image circle alone) the error bar counts the
+shape prior at this width (10 % of the radius, RMS) instead of ``REFINE_SHAPE_SIGMA``. There
+zero-shot's shape is a guess from real lenses of that FOV (rectilinear wide-angles and fisheyes
+share one FOV and differ by 30-40 % in radius near the centre), and where no line reaches (the
+corners a dfov is measured to) the prior alone holds the shape the one FOV's zoom rests on: at 2 %
+the bar stated it known, and rendered lenses given dfov alone were accepted 19.8 and 50.8 px from
+the truth at 2.7 and 6.1 times their bars. The fit keeps the 2 % prior: at 10 % in the fit the
+shape beyond the lines wandered on real photos (a 187-degree fisheye given hfov alone 6.6 -> 48 px,
+a 120-degree camera given dfov 10.7 -> 197 px; benchmarks/results/line_refinement.md, "One FOV
+alone")."""
 
 
 REZOOM = True
@@ -493,7 +505,8 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     given_fovs, fov_sigmas = _fov_statements(fov, circle if states_fov else None)
     result.fov_residuals_deg = _fov_residuals(fov, circle if states_fov else None, refined)
     seen = _seen_circle(image_circle)
-    ref_u, u_layout, u_x, u_jacobian = _fit_uncertainty(fit, seen)
+    ref_u, u_layout, u_x, u_jacobian = _fit_uncertainty(
+        fit, seen, ONE_CONSTRAINT_SHAPE_SPREAD if zs_u.lens_shape_px is not None else None)
     result.refined_uncertainty_px = ref_u.rms_px
     result.refined_uncertainty = ref_u
     if REZOOM:
@@ -735,7 +748,17 @@ def _seen_circle(image_circle):
     return float(image_circle.radius), (float(image_circle.cx), float(image_circle.cy))
 
 
-def _fit_uncertainty(fit: LineFit, seen=None):
+def _widened(term, shape_sigma: float):
+    """``term``, or a copy of it at ``shape_sigma`` when it is a ``ShapePrior``."""
+    if not isinstance(term, ShapePrior):
+        return term
+    wide = copy.copy(term)
+    wide.sigma_relative = float(shape_sigma)
+    wide.sigma = wide.sigma_relative * math.sqrt(len(term.theta))
+    return wide
+
+
+def _fit_uncertainty(fit: LineFit, seen=None, shape_sigma: Optional[float] = None):
     """(Uncertainty, layout, x, jacobian) of the chosen camera under the highest-order model (RMS over the
     whole image; a lower order's bias measured inside the image circle ``seen`` when given,
     ``_seen_circle``).
@@ -744,13 +767,19 @@ def _fit_uncertainty(fit: LineFit, seen=None):
     evidence: with k1 alone free, lines "determine" the zoom that only the FOVs can (a lens of
     the benchmark: 0.9 px reported, 8.9 px true). So the covariance is the highest order's, at the
     chosen camera, inflated by the chosen camera's distance from the highest order's solution
-    (the bias of the restriction), added in quadrature."""
+    (the bias of the restriction), added in quadrature. ``shape_sigma``: the shape prior counted at
+    this width (``ONE_CONSTRAINT_SHAPE_SPREAD``); the Jacobian returned is the fit's own."""
     top = fit.top_problem if fit.top_problem is not None else fit.problem
     layout = top.layout
     x = layout.x_from(fit.camera)
     radius, centre = (None, None) if seen is None else seen
     J = top.jacobian(x)
-    u = problem_uncertainty(top, x, J, clustered=CLUSTERED_COVARIANCE, systematic_px=systematic_floor_px(fit.sigma_px))
+    stated, J_stated = top, J
+    if shape_sigma is not None:
+        stated = Problem(layout, [_widened(t, shape_sigma) for t in top.terms])
+        J_stated = stated.jacobian(x)
+    u = problem_uncertainty(stated, x, J_stated, clustered=CLUSTERED_COVARIANCE,
+                            systematic_px=systematic_floor_px(fit.sigma_px))
     if u.rms_px is None or fit.top_solution is None or fit.order == layout.order:
         return u, layout, x, J
     rays = fit.camera.unproject(pixel_grid(fit.camera.width, fit.camera.height, circle_radius=radius,
