@@ -2228,8 +2228,8 @@ MUTANTS = [
     dict(
         id='seen-circle-bias-over-whole-image',
         file=f'{PKG}/core/estimation/refine.py',
-        old='    ref_u, u_layout, u_x, u_jacobian = _fit_uncertainty(fit, seen)',
-        new='    ref_u, u_layout, u_x, u_jacobian = _fit_uncertainty(fit)',
+        old='        fit, seen, ONE_CONSTRAINT_SHAPE_SPREAD if zs_u.lens_shape_px is not None else None)',
+        new='        fit, None, ONE_CONSTRAINT_SHAPE_SPREAD if zs_u.lens_shape_px is not None else None)',
         behaviour="A lower order's bias counts in the error bar where the images show something, not in dark corners",
         tests=['test/core/estimation/test_refine.py::test_a_circular_fisheyes_dark_corners_do_not_decide_the_gate'],
     ),
@@ -3004,8 +3004,8 @@ MUTANTS = [
     dict(
         id='refine-dark-fov-one-edge-missed',
         file=f'{PKG}/core/estimation/refine.py',
-        old="            if np.any(np.hypot(*(edges[name] - (circle.cx, circle.cy)).T) > circle.radius + margin)]\n",
-        new="            if np.all(np.hypot(*(edges[name] - (circle.cx, circle.cy)).T) > circle.radius + margin)]\n",
+        old="        if out.any():\n",
+        new="        if out.all():\n",
         behaviour='a FOV with one edge past the image circle seen is warned about',
         tests=['test/core/estimation/test_refine.py::test_the_fovs_stated_across_pixels_past_the_image_circle_are_named'],
     ),
