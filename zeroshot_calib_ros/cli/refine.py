@@ -139,9 +139,9 @@ def run(args):
         'diameter_used': 'measured' if measure_diameter else ('given' if spec.circle_diameter is not None else None)}
     # the spec's FOVs against the zero-shot camera, and against the image circle seen
     warnings = list(solution.warnings) + circle_warnings + list(result.spec_warnings)
-    warnings += [] if result.accepted else fit_warnings(solution, calibration, DISTORTION_FITS['equidistant'](solution.camera))
-    # zero-shot returned: its lens shape is still the one assumed from the spec (one FOV), as solve warns
-    warnings += [] if result.accepted else assumption_warnings(solution)
+    if not result.accepted:  # zero-shot returned: solve's warnings on its fit and on the lens shape it assumed
+        warnings += fit_warnings(solution, calibration, DISTORTION_FITS['equidistant'](solution.camera))
+        warnings += assumption_warnings(solution)
     summary['uncertainty_px'] = result.uncertainty_px if result.accepted else result.zero_shot_uncertainty_px
     # every key of `solve --json` whatever the verdict (a client reads them without asking which):
     # the error bar's how, its lens-shape part and what it is over, of the camera returned; no

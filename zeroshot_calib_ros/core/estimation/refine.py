@@ -437,6 +437,8 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
                          'not the same aspect ratio')
     start = zero_shot_start(spec, width, height, fov_tolerance_deg, solution)
     zs, zs_u = start.camera, start.uncertainty
+    # one FOV or the circle alone: zero-shot's lens shape is a guess from real lenses of that FOV
+    shape_guessed = zs_u.lens_shape_px is not None
     scale = width / spec.width
     zs_u_px = None if zs_u.rms_px is None else zs_u.rms_px * scale
     warnings = [zs_u.warning] if zs_u.warning else []
@@ -506,7 +508,7 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
     result.fov_residuals_deg = _fov_residuals(fov, circle if states_fov else None, refined)
     seen = _seen_circle(image_circle)
     ref_u, u_layout, u_x, u_jacobian = _fit_uncertainty(
-        fit, seen, ONE_CONSTRAINT_SHAPE_SPREAD if zs_u.lens_shape_px is not None else None)
+        fit, seen, ONE_CONSTRAINT_SHAPE_SPREAD if shape_guessed else None)
     result.refined_uncertainty_px = ref_u.rms_px
     result.refined_uncertainty = ref_u
     if REZOOM:
@@ -587,7 +589,7 @@ def refine_camera(spec: CameraSpec, curves: Sequence, width: Optional[int] = Non
                       f'refined camera is {distance:.3g} px RMS from it with an uncertainty of {spread:.3g} px, '
                       f'so zero-shot may be as good (probability {100 * p_better:.2g} % that it is better by '
                       f'{margin:.2g} px, at most {100 * allowed:g} % allowed); zero-shot kept')
-    if zs_u.lens_shape_px is not None and not confirmed:
+    if shape_guessed and not confirmed:
         return refuse(f'held-out lines are explained only {100 * (1.0 - after / before):.1f} % better than by '
                       f'zero-shot ({after:.3f} px RMS against {before:.3f} px), and with one FOV (or the image circle '
                       f'alone) the focal length rests on the lens shape the lines show, so the fit needs them at least '
